@@ -1,0 +1,1 @@
+//! Dataset loaders and the synthetic scene generator (in progress; see the gtsr-data issue).

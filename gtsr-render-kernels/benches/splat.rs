@@ -1,0 +1,158 @@
+//! `cargo bench -p gtsr-render-kernels`: forward and forward+backward of the splat op on the
+//! NdArray backend (f32), on the bench scene of the crate README, at 256x256 and 512x512 with
+//! 10k, 100k and 300k Gaussians.
+//!
+//! Each configuration runs in its own process so that its peak resident memory (VmHWM) is its
+//! own. Prints a markdown table. `GTSR_BENCH_FILTER=256x256` (a substring of the config name)
+//! runs a subset.
+
+// Device::ndarray is deprecated upstream; the design card keeps NdArray as the CI backend.
+#![allow(deprecated)]
+
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use burn::tensor::{DType, Device};
+use gtsr_render_kernels::scenes::{RandomSceneSpec, random_scene};
+use gtsr_render_kernels::{AlphaCutoff, cpu, render};
+
+const CONFIGS: [(u32, usize); 6] = [
+    (256, 10_000),
+    (256, 100_000),
+    (256, 300_000),
+    (512, 10_000),
+    (512, 100_000),
+    (512, 300_000),
+];
+
+fn peak_rss_mb() -> f64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    status
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|kb| kb.parse::<f64>().ok())
+        .map(|kb| kb / 1024.0)
+        .unwrap_or(f64::NAN)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn time_it(mut f: impl FnMut()) -> (f64, usize) {
+    f(); // warm-up
+    let mut times = Vec::new();
+    let start = Instant::now();
+    while times.len() < 3 || (times.len() < 15 && start.elapsed() < Duration::from_secs(6)) {
+        let t = Instant::now();
+        f();
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let n = times.len();
+    (median(times), n)
+}
+
+fn single(size: u32, count: usize) {
+    let scene = random_scene(2024, &RandomSceneSpec::bench(count, size, size));
+    let cfg = scene.config(AlphaCutoff::Hard);
+    // Work counts from the host kernels (same code the backend runs).
+    let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
+    let (m, q, s, o, f, xy) = (
+        f32s(&scene.means),
+        f32s(&scene.quats),
+        f32s(&scene.scales),
+        f32s(&scene.opacities),
+        f32s(&scene.features),
+        f32s(&scene.xy_offsets),
+    );
+    let host = cpu::HostGaussians {
+        means: &m,
+        quats: &q,
+        scales: &s,
+        opacities: &o,
+        features: &f,
+        xy_offsets: &xy,
+    };
+    let counts = cpu::forward(&host, &cfg);
+    let evals = counts.evaluations as f64;
+    let isects = counts.intersections;
+    drop(counts);
+
+    let device = Device::ndarray();
+    let (fwd_ms, fwd_n) = time_it(|| {
+        let out = render(scene.inputs(&device, DType::F32), &cfg).unwrap();
+        let _ = out.image.into_data();
+    });
+    let ad = Device::ndarray().autodiff();
+    let (step_ms, step_n) = time_it(|| {
+        let inp = scene.inputs(&ad, DType::F32);
+        let inp = gtsr_render_kernels::SplatInputs {
+            means: inp.means.require_grad(),
+            quats: inp.quats.require_grad(),
+            scales: inp.scales.require_grad(),
+            opacities: inp.opacities.require_grad(),
+            features: inp.features.require_grad(),
+            xy_offsets: None,
+        };
+        let keep = inp.means.clone();
+        let out = render(inp, &cfg).unwrap();
+        let loss = out.image.sum() + out.alpha.sum();
+        let grads = loss.backward();
+        let _ = keep.grad(&grads).unwrap().into_data();
+    });
+    println!(
+        "RESULT {size} {count} {fwd_ms:.2} {fwd_n} {step_ms:.2} {step_n} {evals} {isects} {:.1}",
+        peak_rss_mb()
+    );
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    if let Some(i) = args.iter().position(|a| a == "--single") {
+        let size: u32 = args[i + 1].parse().unwrap();
+        let count: usize = args[i + 2].parse().unwrap();
+        single(size, count);
+        return;
+    }
+    let filter = std::env::var("GTSR_BENCH_FILTER").unwrap_or_default();
+    let exe = std::env::current_exe().expect("bench executable path");
+    println!(
+        "NdArray backend, f32, {} rayon threads. Median wall time per call.\n",
+        rayon::current_num_threads()
+    );
+    println!(
+        "| image | Gaussians | forward ms | fwd+bwd ms | splat-pixel evals (fwd) | fwd Meval/s | tile intersections | peak RSS MB |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    for (size, count) in CONFIGS {
+        let name = format!("{size}x{size}/{count}");
+        if !name.contains(&filter) {
+            continue;
+        }
+        let out = Command::new(&exe)
+            .args(["--single", &size.to_string(), &count.to_string()])
+            .output()
+            .expect("run bench child");
+        let text = String::from_utf8_lossy(&out.stdout);
+        let Some(line) = text.lines().find(|l| l.starts_with("RESULT")) else {
+            eprintln!("{name}: failed\n{}", String::from_utf8_lossy(&out.stderr));
+            continue;
+        };
+        let v: Vec<&str> = line.split_whitespace().collect();
+        let fwd: f64 = v[3].parse().unwrap();
+        let evals: f64 = v[7].parse().unwrap();
+        println!(
+            "| {size}x{size} | {count} | {} (n={}) | {} (n={}) | {:.3e} | {:.0} | {} | {} |",
+            v[3],
+            v[4],
+            v[5],
+            v[6],
+            evals,
+            evals / fwd / 1e3,
+            v[8],
+            v[9]
+        );
+    }
+}

@@ -1,0 +1,217 @@
+//! The public entry point: [`render`] on Burn tensors.
+
+use burn::backend::Dispatch;
+use burn::tensor::{Device, Tensor};
+use thiserror::Error;
+
+use crate::backend::{SplatBackend, supported_dtype};
+use crate::config::SplatConfig;
+
+/// The Gaussians to render, as Burn tensors on one device (any expression: activations, SH
+/// evaluation or a Fresnel factor upstream are differentiated through).
+#[derive(Clone, Debug)]
+pub struct SplatInputs {
+    /// `[N, 3]` world-space means.
+    pub means: Tensor<2>,
+    /// `[N, 4]` rotations as quaternions `(w, x, y, z)`; need not be unit (normalised inside;
+    /// squared norms below [`crate::config::QUAT_MIN_NORM2`] are culled).
+    pub quats: Tensor<2>,
+    /// `[N, 3]` scales: standard deviations along the local axes (positive: apply `exp` to
+    /// log-scales upstream).
+    pub scales: Tensor<2>,
+    /// `[N]` opacities in `[0, 1]` (apply `sigmoid` upstream; a view-dependent factor such as a
+    /// Fresnel term may already be multiplied in).
+    pub opacities: Tensor<1>,
+    /// `[N, C]` features blended per pixel (RGB, normals, plane distances, material maps...).
+    pub features: Tensor<2>,
+    /// Optional `[N, 2]` screen-space offsets in pixels added to the projected means. Pass zeros
+    /// that require grad to obtain the screen-space positional gradient (`dL/d(mean2d)`, what
+    /// 3DGS densification thresholds); `None` uses zeros.
+    pub xy_offsets: Option<Tensor<2>>,
+}
+
+/// The result of [`render`].
+#[derive(Clone, Debug)]
+pub struct RenderOutput {
+    /// `[H, W, C]`: `sum_i f_i alpha_i T_i + T_final * background`. Differentiable.
+    pub image: Tensor<3>,
+    /// `[H, W]`: accumulated alpha `1 - T_final`. Differentiable.
+    pub alpha: Tensor<2>,
+    /// `[N, 4]`, not differentiated: per Gaussian the screen radius in pixels (largest half
+    /// extent of the region where its alpha can reach 1/255), its camera-space depth, the number
+    /// of 16x16 tiles it touches, and a status code ([`crate::config::status`]: 0 visible,
+    /// 1 clipped by near/far, 2 non-finite parameter, 3 degenerate, 4 off screen / too
+    /// transparent). Culled Gaussians have radius 0 and zero gradients.
+    pub aux: Tensor<2>,
+}
+
+impl RenderOutput {
+    /// `[N]` screen radius in pixels (0 when culled).
+    pub fn radii(&self) -> Tensor<1> {
+        self.aux.clone().slice([0..self.aux.dims()[0], 0..1]).squeeze_dim(1)
+    }
+
+    /// `[N]` status codes (see [`crate::config::status`]).
+    pub fn status(&self) -> Tensor<1> {
+        self.aux.clone().slice([0..self.aux.dims()[0], 3..4]).squeeze_dim(1)
+    }
+}
+
+/// Why a render was refused.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum RenderError {
+    /// A tensor has the wrong shape.
+    #[error("{name} must have shape {expected}, got {got:?}")]
+    Shape {
+        /// Which input.
+        name: &'static str,
+        /// The expected shape, in words.
+        expected: String,
+        /// The actual shape.
+        got: Vec<usize>,
+    },
+    /// The background has a different channel count from the features.
+    #[error("background has {background} channels but features have {features}")]
+    Background {
+        /// Background length.
+        background: usize,
+        /// Feature channels.
+        features: usize,
+    },
+    /// At least one feature channel is needed.
+    #[error("features must have at least one channel")]
+    NoChannels,
+    /// The background contains NaN or infinity.
+    #[error("background value {0} is not finite")]
+    NonFiniteBackground(f64),
+    /// Inputs on different devices, or of different float types.
+    #[error("all inputs must share one device and one float dtype ({0})")]
+    Mixed(String),
+    /// The device's backend has no splatting kernels.
+    #[error(
+        "no splatting kernels for device {0:?}: this build supports the NdArray backend (with or without autodiff)"
+    )]
+    UnsupportedDevice(Device),
+    /// Only f32 and f64 are supported.
+    #[error("unsupported float dtype {0:?}: use f32 or f64")]
+    UnsupportedDType(burn::tensor::DType),
+}
+
+/// Whether this build has splatting kernels for `device`.
+pub fn device_supported(device: &Device) -> bool {
+    use burn::backend::DispatchDevice;
+    let inner = device.clone().without_autodiff();
+    #[allow(unreachable_patterns)]
+    match inner.as_dispatch() {
+        DispatchDevice::NdArray(_) => true,
+        _ => false,
+    }
+}
+
+fn check_shape(
+    name: &'static str,
+    got: &[usize],
+    expected: &[usize],
+    words: &str,
+) -> Result<(), RenderError> {
+    if got != expected {
+        return Err(RenderError::Shape {
+            name,
+            expected: words.to_string(),
+            got: got.to_vec(),
+        });
+    }
+    Ok(())
+}
+
+/// Splats `inputs` into the camera of `config`.
+///
+/// Projection (EWA, 0.3 px blur, Jacobian clamp, near/far and non-finite culling), depth sort
+/// and 16x16 tile binning, and front-to-back blending follow the 3DGS conventions; see the
+/// crate docs. On an autodiff device the image and alpha are differentiable with respect to
+/// every input tensor.
+///
+/// ```
+/// use burn::tensor::{Device, Tensor};
+/// use gtsr_render_kernels::{Camera, SplatConfig, SplatInputs, render};
+///
+/// let device = Device::ndarray();
+/// let camera = Camera::look_at([0.0, 0.0, -4.0], [0.0; 3], [0.0, -1.0, 0.0], 0.69, 64, 64)?;
+/// let inputs = SplatInputs {
+///     means: Tensor::from_floats([[0.0, 0.0, 0.0]], &device),
+///     quats: Tensor::from_floats([[1.0, 0.0, 0.0, 0.0]], &device),
+///     scales: Tensor::from_floats([[0.2, 0.2, 0.2]], &device),
+///     opacities: Tensor::from_floats([0.8], &device),
+///     features: Tensor::from_floats([[1.0, 0.5, 0.0]], &device),
+///     xy_offsets: None,
+/// };
+/// let config = SplatConfig { camera, background: vec![0.0; 3], cutoff: Default::default() };
+/// let out = render(inputs, &config)?;
+/// assert_eq!(out.image.dims(), [64, 64, 3]);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn render(inputs: SplatInputs, config: &SplatConfig) -> Result<RenderOutput, RenderError> {
+    let n = inputs.means.dims()[0];
+    check_shape("means", &inputs.means.dims(), &[n, 3], "[N, 3]")?;
+    check_shape("quats", &inputs.quats.dims(), &[n, 4], "[N, 4]")?;
+    check_shape("scales", &inputs.scales.dims(), &[n, 3], "[N, 3]")?;
+    check_shape("opacities", &inputs.opacities.dims(), &[n], "[N]")?;
+    let c = inputs.features.dims()[1];
+    check_shape("features", &inputs.features.dims(), &[n, c], "[N, C]")?;
+    if c == 0 {
+        return Err(RenderError::NoChannels);
+    }
+    if config.background.len() != c {
+        return Err(RenderError::Background {
+            background: config.background.len(),
+            features: c,
+        });
+    }
+    if let Some(b) = config.background.iter().find(|b| !b.is_finite()) {
+        return Err(RenderError::NonFiniteBackground(*b));
+    }
+    let device = inputs.means.device();
+    let dtype = inputs.means.dtype();
+    if !supported_dtype(dtype) {
+        return Err(RenderError::UnsupportedDType(dtype));
+    }
+    if !device_supported(&device) {
+        return Err(RenderError::UnsupportedDevice(device));
+    }
+    let xy_offsets = match inputs.xy_offsets {
+        Some(t) => {
+            check_shape("xy_offsets", &t.dims(), &[n, 2], "[N, 2]")?;
+            t
+        }
+        None => Tensor::zeros([n, 2], (&device, dtype)),
+    };
+    let all = [
+        (inputs.quats.device(), inputs.quats.dtype()),
+        (inputs.scales.device(), inputs.scales.dtype()),
+        (inputs.opacities.device(), inputs.opacities.dtype()),
+        (inputs.features.device(), inputs.features.dtype()),
+        (xy_offsets.device(), xy_offsets.dtype()),
+    ];
+    for (d, t) in all {
+        if d.clone().without_autodiff() != device.clone().without_autodiff() || t != dtype {
+            return Err(RenderError::Mixed(format!(
+                "means are {dtype:?} on {device:?}, another input is {t:?} on {d:?}"
+            )));
+        }
+    }
+    let (h, w) = (config.camera.height as usize, config.camera.width as usize);
+    let (out, aux) = <Dispatch as SplatBackend>::splat(
+        inputs.means.into_dispatch(),
+        inputs.quats.into_dispatch(),
+        inputs.scales.into_dispatch(),
+        inputs.opacities.into_dispatch(),
+        inputs.features.into_dispatch(),
+        xy_offsets.into_dispatch(),
+        config.clone(),
+    );
+    let out: Tensor<3> = Tensor::from_dispatch(out);
+    let aux: Tensor<2> = Tensor::from_dispatch(aux);
+    let image = out.clone().slice([0..h, 0..w, 0..c]);
+    let alpha = out.slice([0..h, 0..w, c..c + 1]).reshape([h, w]);
+    Ok(RenderOutput { image, alpha, aux })
+}

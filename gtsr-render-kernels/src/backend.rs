@@ -1,0 +1,259 @@
+//! The splatting op as a Burn backend extension.
+//!
+//! Two traits split the work as Burn's own ops do:
+//! - [`SplatKernels`] (not dispatched): the forward pass that also returns a backend-specific
+//!   state, and the backward pass that consumes it. A backend implements this to provide the
+//!   kernels.
+//! - [`SplatBackend`] (a `#[backend_extension]`, dispatched at run time by the device): the one
+//!   op `splat`, implemented for every kernel backend (forward only) and for
+//!   `Autodiff<B, C>` (forward + a registered `Backward` that calls
+//!   [`SplatKernels::splat_backward`]).
+
+use std::sync::Arc;
+
+use burn::backend::{Backend, NdArray, backend_extension, tensor::FloatTensor};
+use burn::tensor::{DType, TensorData};
+use burn_ndarray::NdArrayTensor;
+
+use crate::config::SplatConfig;
+use crate::cpu::{self, ForwardState, HostGaussians};
+use crate::scalar::Real;
+
+/// The raw inputs of one splat op as backend primitives.
+#[derive(Debug, Clone)]
+pub struct SplatPrimitives<B: Backend> {
+    /// `[N, 3]`
+    pub means: FloatTensor<B>,
+    /// `[N, 4]`
+    pub quats: FloatTensor<B>,
+    /// `[N, 3]`
+    pub scales: FloatTensor<B>,
+    /// `[N]`
+    pub opacities: FloatTensor<B>,
+    /// `[N, C]`
+    pub features: FloatTensor<B>,
+    /// `[N, 2]`
+    pub xy_offsets: FloatTensor<B>,
+}
+
+/// Kernels a backend provides: forward with saved state, and backward.
+pub trait SplatKernels: Backend {
+    /// What the forward pass saves for the backward pass.
+    type SplatState: Clone + Send + Sync + core::fmt::Debug + 'static;
+
+    /// Renders: returns the `[H, W, C + 1]` image (features over the background, then alpha),
+    /// the `[N, 4]` aux tensor (radius px, depth, tiles touched, status) and the saved state.
+    fn splat_forward(
+        inputs: SplatPrimitives<Self>,
+        config: &SplatConfig,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, Self::SplatState);
+
+    /// Gradients of means, quats, scales, opacities, features and xy offsets given the gradient
+    /// of the `[H, W, C + 1]` output.
+    fn splat_backward(state: Self::SplatState, grad: FloatTensor<Self>) -> [FloatTensor<Self>; 6];
+}
+
+/// The dispatched splatting op. Use [`crate::render`] rather than calling this directly.
+#[backend_extension(Autodiff, NdArray)]
+pub trait SplatBackend: Backend {
+    /// Forward splat: returns `(image_and_alpha [H, W, C + 1], aux [N, 4])`. Only the first
+    /// output is differentiable.
+    fn splat(
+        means: FloatTensor<Self>,
+        quats: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        opacities: FloatTensor<Self>,
+        features: FloatTensor<Self>,
+        xy_offsets: FloatTensor<Self>,
+        config: SplatConfig,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>);
+}
+
+impl SplatBackend for NdArray {
+    fn splat(
+        means: FloatTensor<Self>,
+        quats: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        opacities: FloatTensor<Self>,
+        features: FloatTensor<Self>,
+        xy_offsets: FloatTensor<Self>,
+        config: SplatConfig,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        let inputs = SplatPrimitives {
+            means,
+            quats,
+            scales,
+            opacities,
+            features,
+            xy_offsets,
+        };
+        let (out, aux, _) = <Self as SplatKernels>::splat_forward(inputs, &config);
+        (out, aux)
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// NdArray kernels.
+
+/// Host copies of the inputs in one precision.
+#[derive(Debug)]
+struct HostInputs<F> {
+    means: Vec<F>,
+    quats: Vec<F>,
+    scales: Vec<F>,
+    opacities: Vec<F>,
+    features: Vec<F>,
+    xy_offsets: Vec<F>,
+}
+
+impl<F: Real> HostInputs<F> {
+    fn view(&self) -> HostGaussians<'_, F> {
+        HostGaussians {
+            means: &self.means,
+            quats: &self.quats,
+            scales: &self.scales,
+            opacities: &self.opacities,
+            features: &self.features,
+            xy_offsets: &self.xy_offsets,
+        }
+    }
+}
+
+/// Saved state of the NdArray forward pass.
+#[derive(Debug)]
+pub struct NdArraySplatSaved<F> {
+    inputs: HostInputs<F>,
+    config: SplatConfig,
+    forward: ForwardState<F>,
+    image_shape: [usize; 3],
+}
+
+/// The NdArray backend's saved state, in the precision of the inputs.
+#[derive(Debug, Clone)]
+pub enum NdArraySplatState {
+    /// f32 inputs.
+    F32(Arc<NdArraySplatSaved<f32>>),
+    /// f64 inputs.
+    F64(Arc<NdArraySplatSaved<f64>>),
+}
+
+fn read_host<F: Real>(t: &NdArrayTensor) -> Vec<F> {
+    match t {
+        NdArrayTensor::F32(s) => {
+            let v = s.view();
+            match v.as_slice() {
+                Some(sl) => sl.iter().map(|&x| F::c(f64::from(x))).collect(),
+                None => v.iter().map(|&x| F::c(f64::from(x))).collect(),
+            }
+        }
+        NdArrayTensor::F64(s) => {
+            let v = s.view();
+            match v.as_slice() {
+                Some(sl) => sl.iter().map(|&x| F::c(x)).collect(),
+                None => v.iter().map(|&x| F::c(x)).collect(),
+            }
+        }
+        other => panic!(
+            "gtsr-render-kernels: expected an f32 or f64 tensor, got {:?}",
+            burn::backend::TensorMetadata::dtype(other)
+        ),
+    }
+}
+
+fn is_f64(t: &NdArrayTensor) -> bool {
+    matches!(t, NdArrayTensor::F64(_))
+}
+
+fn to_nd<F: Real>(v: Vec<F>, shape: &[usize]) -> NdArrayTensor
+where
+    F: burn::tensor::Element,
+{
+    NdArrayTensor::from_data(TensorData::new(v, shape.to_vec()))
+}
+
+fn host_inputs<F: Real>(p: &SplatPrimitives<NdArray>) -> HostInputs<F> {
+    HostInputs {
+        means: read_host(&p.means),
+        quats: read_host(&p.quats),
+        scales: read_host(&p.scales),
+        opacities: read_host(&p.opacities),
+        features: read_host(&p.features),
+        xy_offsets: read_host(&p.xy_offsets),
+    }
+}
+
+fn nd_forward<F: Real + burn::tensor::Element>(
+    p: &SplatPrimitives<NdArray>,
+    config: &SplatConfig,
+) -> (NdArrayTensor, NdArrayTensor, Arc<NdArraySplatSaved<F>>) {
+    let inputs = host_inputs::<F>(p);
+    let n = inputs.opacities.len();
+    let c = config.background.len();
+    let out = cpu::forward(&inputs.view(), config);
+    let image_shape = [
+        config.camera.height as usize,
+        config.camera.width as usize,
+        c + 1,
+    ];
+    let image = to_nd(out.image, &image_shape);
+    let aux = to_nd(out.aux, &[n, 4]);
+    let saved = Arc::new(NdArraySplatSaved {
+        inputs,
+        config: config.clone(),
+        forward: out.state,
+        image_shape,
+    });
+    (image, aux, saved)
+}
+
+fn nd_backward<F: Real + burn::tensor::Element>(
+    saved: &NdArraySplatSaved<F>,
+    grad: &NdArrayTensor,
+) -> [NdArrayTensor; 6] {
+    let grad: Vec<F> = read_host(grad);
+    assert_eq!(
+        grad.len(),
+        saved.image_shape.iter().product::<usize>(),
+        "gradient of the splat output has the wrong size"
+    );
+    let n = saved.inputs.opacities.len();
+    let c = saved.config.background.len();
+    let g = cpu::backward(&saved.inputs.view(), &saved.config, &saved.forward, &grad);
+    [
+        to_nd(g.means, &[n, 3]),
+        to_nd(g.quats, &[n, 4]),
+        to_nd(g.scales, &[n, 3]),
+        to_nd(g.opacities, &[n]),
+        to_nd(g.features, &[n, c]),
+        to_nd(g.xy_offsets, &[n, 2]),
+    ]
+}
+
+impl SplatKernels for NdArray {
+    type SplatState = NdArraySplatState;
+
+    fn splat_forward(
+        inputs: SplatPrimitives<Self>,
+        config: &SplatConfig,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, Self::SplatState) {
+        if is_f64(&inputs.means) {
+            let (i, a, s) = nd_forward::<f64>(&inputs, config);
+            (i, a, NdArraySplatState::F64(s))
+        } else {
+            let (i, a, s) = nd_forward::<f32>(&inputs, config);
+            (i, a, NdArraySplatState::F32(s))
+        }
+    }
+
+    fn splat_backward(state: Self::SplatState, grad: FloatTensor<Self>) -> [FloatTensor<Self>; 6] {
+        match state {
+            NdArraySplatState::F32(s) => nd_backward(&s, &grad),
+            NdArraySplatState::F64(s) => nd_backward(&s, &grad),
+        }
+    }
+}
+
+/// Whether `dtype` is one the CPU kernels compute in.
+pub(crate) fn supported_dtype(dtype: DType) -> bool {
+    matches!(dtype, DType::F32 | DType::F64)
+}

@@ -1,0 +1,36 @@
+//! The floating-point type the CPU kernels are written over (`f32` or `f64`).
+
+use core::fmt::Debug;
+
+/// `f32` or `f64`: the CPU kernels are generic over it so that the same code serves training
+/// (f32) and the f64 reference used by the finite-difference tests.
+pub trait Real:
+    num_traits::Float + num_traits::FloatConst + Send + Sync + Debug + Default + 'static
+{
+    /// Converts from `f64` (rounding for `f32`).
+    fn c(v: f64) -> Self;
+    /// Widens to `f64`.
+    fn f64(self) -> f64;
+}
+
+impl Real for f32 {
+    #[inline(always)]
+    fn c(v: f64) -> Self {
+        v as f32
+    }
+    #[inline(always)]
+    fn f64(self) -> f64 {
+        f64::from(self)
+    }
+}
+
+impl Real for f64 {
+    #[inline(always)]
+    fn c(v: f64) -> Self {
+        v
+    }
+    #[inline(always)]
+    fn f64(self) -> f64 {
+        self
+    }
+}

@@ -1,0 +1,14 @@
+//! Tests of the splatting kernels: forward against the brute-force reference, analytic
+//! profiles, backward against central finite differences, stiff cases, determinism.
+
+// Device::ndarray is deprecated upstream; the design card keeps NdArray as the CI backend.
+#![allow(deprecated)]
+
+mod analytic;
+mod common;
+mod determinism;
+mod errors;
+mod forward;
+mod gradients;
+mod stiff;
+mod upstream;

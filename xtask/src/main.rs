@@ -1,0 +1,25 @@
+//! Project tasks: `cargo xtask <command>`.
+
+mod stability;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "xtask", about = "GTSR-rs project tasks")]
+struct Cli {
+    #[command(subcommand)]
+    command: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Table of the stiff and extreme kernel cases: max |f32 - f64| of outputs and gradients
+    /// and counts of non-finite values.
+    Stability,
+}
+
+fn main() -> anyhow::Result<()> {
+    match Cli::parse().command {
+        Cmd::Stability => stability::run(),
+    }
+}
