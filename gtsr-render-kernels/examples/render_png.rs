@@ -10,7 +10,9 @@ use gtsr_render_kernels::scenes::{RandomSceneSpec, random_scene};
 use gtsr_render_kernels::{AlphaCutoff, render};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let path = std::env::args().nth(1).unwrap_or_else(|| "splat.png".to_string());
+    let path = std::env::args()
+        .nth(1)
+        .unwrap_or_else(|| "splat.png".to_string());
     let mut spec = RandomSceneSpec::bench(20_000, 320, 240);
     spec.scale_range = (0.01, 0.06);
     let mut scene = random_scene(3, &spec);
@@ -29,13 +31,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let [h, w, _] = out.image.dims();
     let image: Vec<f32> = out.image.into_data().try_to_vec()?;
     let alpha: Vec<f32> = out.alpha.into_data().try_to_vec()?;
-    println!("rendered {} Gaussians at {w}x{h} in {:.1} ms", scene.len(), t.elapsed().as_secs_f64() * 1e3);
+    println!(
+        "rendered {} Gaussians at {w}x{h} in {:.1} ms",
+        scene.len(),
+        t.elapsed().as_secs_f64() * 1e3
+    );
     let to8 = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
     let mut png = image::RgbImage::new(2 * w as u32, h as u32);
     for y in 0..h {
         for x in 0..w {
             let p = y * w + x;
-            let rgb = [to8(image[3 * p]), to8(image[3 * p + 1]), to8(image[3 * p + 2])];
+            let rgb = [
+                to8(image[3 * p]),
+                to8(image[3 * p + 1]),
+                to8(image[3 * p + 2]),
+            ];
             png.put_pixel(x as u32, y as u32, image::Rgb(rgb));
             let a = to8(alpha[p]);
             png.put_pixel((w + x) as u32, y as u32, image::Rgb([a, a, a]));

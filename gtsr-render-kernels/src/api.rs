@@ -48,12 +48,18 @@ pub struct RenderOutput {
 impl RenderOutput {
     /// `[N]` screen radius in pixels (0 when culled).
     pub fn radii(&self) -> Tensor<1> {
-        self.aux.clone().slice([0..self.aux.dims()[0], 0..1]).squeeze_dim(1)
+        self.aux
+            .clone()
+            .slice([0..self.aux.dims()[0], 0..1])
+            .squeeze_dim(1)
     }
 
     /// `[N]` status codes (see [`crate::config::status`]).
     pub fn status(&self) -> Tensor<1> {
-        self.aux.clone().slice([0..self.aux.dims()[0], 3..4]).squeeze_dim(1)
+        self.aux
+            .clone()
+            .slice([0..self.aux.dims()[0], 3..4])
+            .squeeze_dim(1)
     }
 }
 
@@ -101,11 +107,7 @@ pub enum RenderError {
 pub fn device_supported(device: &Device) -> bool {
     use burn::backend::DispatchDevice;
     let inner = device.clone().without_autodiff();
-    #[allow(unreachable_patterns)]
-    match inner.as_dispatch() {
-        DispatchDevice::NdArray(_) => true,
-        _ => false,
-    }
+    matches!(inner.as_dispatch(), DispatchDevice::NdArray(_))
 }
 
 fn check_shape(

@@ -56,7 +56,11 @@ impl<B: SplatKernels, C: CheckpointStrategy> SplatBackend for Autodiff<B, C> {
             xy_offsets: xy_offsets.into_primitive(),
         };
         let (image, aux, state) = B::splat_forward(inputs, &config);
-        let image = match SplatBackward.prepare::<C>(guards).compute_bound().stateful() {
+        let image = match SplatBackward
+            .prepare::<C>(guards)
+            .compute_bound()
+            .stateful()
+        {
             OpsKind::Tracked(prep) => prep.finish(state, image),
             OpsKind::UnTracked(prep) => prep.finish(image),
         };

@@ -164,10 +164,7 @@ fn is_f64(t: &NdArrayTensor) -> bool {
     matches!(t, NdArrayTensor::F64(_))
 }
 
-fn to_nd<F: Real>(v: Vec<F>, shape: &[usize]) -> NdArrayTensor
-where
-    F: burn::tensor::Element,
-{
+fn to_nd<F: Real + burn::tensor::Element>(v: Vec<F>, shape: &[usize]) -> NdArrayTensor {
     NdArrayTensor::from_data(TensorData::new(v, shape.to_vec()))
 }
 

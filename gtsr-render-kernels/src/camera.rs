@@ -96,7 +96,13 @@ impl Camera {
         near: f64,
         far: f64,
     ) -> Result<Self, CameraError> {
-        for (name, v) in [("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy), ("near", near)] {
+        for (name, v) in [
+            ("fx", fx),
+            ("fy", fy),
+            ("cx", cx),
+            ("cy", cy),
+            ("near", near),
+        ] {
             if !v.is_finite() {
                 return Err(CameraError::NonFinite(name));
             }

@@ -74,7 +74,11 @@ fn project(g: &HostGaussians<'_, f64>, i: usize, cfg: &SplatConfig) -> Option<Pr
     let rot: [[f64; 3]; 3] = std::array::from_fn(|a| {
         std::array::from_fn(|b| (0..4).map(|k| l[a + 1][k] * r[b + 1][k]).sum())
     });
-    let s2 = [[s[0] * s[0], 0.0, 0.0], [0.0, s[1] * s[1], 0.0], [0.0, 0.0, s[2] * s[2]]];
+    let s2 = [
+        [s[0] * s[0], 0.0, 0.0],
+        [0.0, s[1] * s[1], 0.0],
+        [0.0, 0.0, s[2] * s[2]],
+    ];
     let sigma = mat3_mul(&mat3_mul(&rot, &s2), &mat3_t(&rot));
     let sigma_c = mat3_mul(&mat3_mul(&w, &sigma), &mat3_t(&w));
     let (wf, hf) = (f64::from(cam.width), f64::from(cam.height));
@@ -105,7 +109,7 @@ fn project(g: &HostGaussians<'_, f64>, i: usize, cfg: &SplatConfig) -> Option<Pr
         })
     });
     let det = cov[0][0] * cov[1][1] - cov[0][1] * cov[1][0];
-    if !(det > 0.0) || !det.is_finite() {
+    if !det.is_finite() || det <= 0.0 {
         return None;
     }
     let inv = [
@@ -152,13 +156,13 @@ pub fn render_reference(g: &HostGaussians<'_, f64>, cfg: &SplatConfig) -> Vec<f6
                 break;
             }
             let f = &g.features[s.index * c..(s.index + 1) * c];
-            for k in 0..c {
-                px[k] += f[k] * alpha * t;
+            for (acc, fk) in px.iter_mut().zip(f) {
+                *acc += fk * alpha * t;
             }
             t = next;
         }
-        for k in 0..c {
-            px[k] += t * cfg.background[k];
+        for (acc, b) in px.iter_mut().zip(&cfg.background) {
+            *acc += t * b;
         }
         px[c] = 1.0 - t;
     });

@@ -182,7 +182,9 @@ pub fn random_scene(seed: u64, spec: &RandomSceneSpec) -> HostScene {
         xy_offsets: vec![0.0; 2 * spec.count],
         channels: spec.channels,
         camera,
-        background: (0..spec.channels).map(|_| rng.random_range(0.0..1.0)).collect(),
+        background: (0..spec.channels)
+            .map(|_| rng.random_range(0.0..1.0))
+            .collect(),
     };
     let (lo, hi) = (spec.scale_range.0.ln(), spec.scale_range.1.ln());
     for _ in 0..spec.count {
@@ -275,35 +277,83 @@ pub fn stiff_cases() -> Vec<StiffCase> {
     let mut cases = vec![
         StiffCase {
             name: "edge-on flat (scale 1e-6)",
-            scene: single(cam.clone(), [0.0, 0.0, 3.0], edge_on_quat, [0.5, 0.5, 1e-6], 0.8),
+            scene: single(
+                cam.clone(),
+                [0.0, 0.0, 3.0],
+                edge_on_quat,
+                [0.5, 0.5, 1e-6],
+                0.8,
+            ),
         },
         StiffCase {
             name: "tiny scales (1e-6)",
-            scene: single(cam.clone(), [0.05, -0.02, 3.0], [1.0, 0.2, 0.1, 0.0], [1e-6; 3], 0.8),
+            scene: single(
+                cam.clone(),
+                [0.05, -0.02, 3.0],
+                [1.0, 0.2, 0.1, 0.0],
+                [1e-6; 3],
+                0.8,
+            ),
         },
         StiffCase {
             name: "huge scales (1e3)",
-            scene: single(cam.clone(), [0.1, 0.0, 3.0], [0.9, 0.1, 0.3, 0.2], [1e3; 3], 0.5),
+            scene: single(
+                cam.clone(),
+                [0.1, 0.0, 3.0],
+                [0.9, 0.1, 0.3, 0.2],
+                [1e3; 3],
+                0.5,
+            ),
         },
         StiffCase {
             name: "mixed 1e-6 .. 1e3",
-            scene: single(cam.clone(), [0.0, 0.1, 2.0], [0.7, 0.1, 0.7, 0.0], [1e3, 1e-6, 1.0], 0.6),
+            scene: single(
+                cam.clone(),
+                [0.0, 0.1, 2.0],
+                [0.7, 0.1, 0.7, 0.0],
+                [1e3, 1e-6, 1.0],
+                0.6,
+            ),
         },
         StiffCase {
             name: "crossing the near plane",
-            scene: single(cam.clone(), [0.0, 0.0, 0.0105], [1.0, 0.0, 0.0, 0.0], [0.05; 3], 0.7),
+            scene: single(
+                cam.clone(),
+                [0.0, 0.0, 0.0105],
+                [1.0, 0.0, 0.0, 0.0],
+                [0.05; 3],
+                0.7,
+            ),
         },
         StiffCase {
             name: "behind the camera",
-            scene: single(cam.clone(), [0.0, 0.0, -1.0], [1.0, 0.0, 0.0, 0.0], [0.5; 3], 0.7),
+            scene: single(
+                cam.clone(),
+                [0.0, 0.0, -1.0],
+                [1.0, 0.0, 0.0, 0.0],
+                [0.5; 3],
+                0.7,
+            ),
         },
         StiffCase {
             name: "far outside the frustum",
-            scene: single(cam.clone(), [40.0, -30.0, 2.0], [1.0, 0.0, 0.0, 0.0], [5.0; 3], 0.7),
+            scene: single(
+                cam.clone(),
+                [40.0, -30.0, 2.0],
+                [1.0, 0.0, 0.0, 0.0],
+                [5.0; 3],
+                0.7,
+            ),
         },
         StiffCase {
             name: "opacity 1 - 1e-7",
-            scene: single(cam.clone(), [0.0, 0.0, 3.0], [1.0, 0.0, 0.0, 0.0], [0.2; 3], 1.0 - 1e-7),
+            scene: single(
+                cam.clone(),
+                [0.0, 0.0, 3.0],
+                [1.0, 0.0, 0.0, 0.0],
+                [0.2; 3],
+                1.0 - 1e-7,
+            ),
         },
         StiffCase {
             name: "near-zero quaternion (1e-5)",
@@ -317,11 +367,23 @@ pub fn stiff_cases() -> Vec<StiffCase> {
         },
         StiffCase {
             name: "small quaternion (1e-3)",
-            scene: single(cam.clone(), [0.0, 0.0, 3.0], [1e-3, 2e-4, 0.0, 1e-4], [0.1; 3], 0.5),
+            scene: single(
+                cam.clone(),
+                [0.0, 0.0, 3.0],
+                [1e-3, 2e-4, 0.0, 1e-4],
+                [0.1; 3],
+                0.5,
+            ),
         },
     ];
     // 10,000 splats on one pixel.
-    let mut pile = single(cam.clone(), [0.0, 0.0, 3.0], [1.0, 0.0, 0.0, 0.0], [0.002; 3], 0.3);
+    let mut pile = single(
+        cam.clone(),
+        [0.0, 0.0, 3.0],
+        [1.0, 0.0, 0.0, 0.0],
+        [0.002; 3],
+        0.3,
+    );
     let one = pile.clone();
     for k in 1..10_000 {
         let mut g = one.clone();
@@ -343,7 +405,13 @@ pub fn stiff_cases() -> Vec<StiffCase> {
     ];
     let mut s = base.clone();
     for &(_, which, v) in &bad {
-        let mut g = single(cam.clone(), [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.1; 3], 0.5);
+        let mut g = single(
+            cam.clone(),
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0, 0.0],
+            [0.1; 3],
+            0.5,
+        );
         g.camera = s.camera.clone();
         match which {
             0 => g.means[1] = v,
@@ -420,7 +488,10 @@ pub fn weighted_loss_gradients(
         .grad(&grads)
         .map(|g| host(g.into_data()))
         .unwrap_or_else(|| vec![0.0; scene.len()]);
-    let xy = leaves.xy_offsets.as_ref().expect("scene inputs carry offsets");
+    let xy = leaves
+        .xy_offsets
+        .as_ref()
+        .expect("scene inputs carry offsets");
     Ok(SceneGradients {
         output: host(joined.inner().into_data()),
         grads: [

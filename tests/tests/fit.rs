@@ -26,7 +26,9 @@ fn adam_fits_a_target_render() {
     let target_scene = random_scene(1, &spec);
     let cfg = target_scene.config(AlphaCutoff::Hard);
     let plain = Device::ndarray();
-    let target = render(target_scene.inputs(&plain, DType::F32), &cfg).unwrap().image;
+    let target = render(target_scene.inputs(&plain, DType::F32), &cfg)
+        .unwrap()
+        .image;
 
     // Start from a different random scene seen by the same camera.
     let mut start = random_scene(2, &spec);
@@ -56,9 +58,15 @@ fn adam_fits_a_target_render() {
         };
         let out = render(inputs, &cfg).unwrap();
         let loss = (out.image - target.clone().autodiff()).abs().mean();
-        losses.push(loss.clone().into_scalar().to_f64());
+        losses.push(loss.clone().into_scalar::<f64>());
         let grads = loss.backward();
-        let params = [&mut means, &mut quats, &mut log_scales, &mut logits, &mut colours];
+        let params = [
+            &mut means,
+            &mut quats,
+            &mut log_scales,
+            &mut logits,
+            &mut colours,
+        ];
         for (k, p) in params.into_iter().enumerate() {
             let g = p.grad(&grads).expect("every parameter receives a gradient");
             let (next, state) = adam.step(lrs[k], p.clone().inner(), g, states[k].take());

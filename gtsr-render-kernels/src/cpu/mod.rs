@@ -73,8 +73,9 @@ impl<F: Real> HostGaussians<'_, F> {
 /// What the forward pass keeps for the backward pass.
 #[derive(Debug)]
 pub struct ForwardState<F> {
-    splats: Vec<Option<Splat<F>>>,
-    bins: Bins,
+    /// Visible Gaussians in depth order (indices).
+    order: Vec<u32>,
+    bins: Bins<F>,
     raster: RasterState<F>,
     background: Vec<F>,
     channels: usize,
@@ -122,7 +123,10 @@ pub fn forward<F: Real>(g: &HostGaussians<'_, F>, cfg: &SplatConfig) -> ForwardO
         .into_par_iter()
         .with_min_len(1024)
         .map(|i| {
-            if g.features[i * c..(i + 1) * c].iter().any(|f| !f.is_finite()) {
+            if g.features[i * c..(i + 1) * c]
+                .iter()
+                .any(|f| !f.is_finite())
+            {
                 return Err(status::NON_FINITE);
             }
             project::project_one(&g.get(i), &cam)
@@ -142,7 +146,20 @@ pub fn forward<F: Real>(g: &HostGaussians<'_, F>, cfg: &SplatConfig) -> ForwardO
     }
     let splats: Vec<Option<Splat<F>>> = projected.into_iter().map(Result::ok).collect();
     let (tiles_x, tiles_y) = cfg.camera.tile_grid();
-    let bins = bin::bin(&splats, tiles_x, tiles_y);
+    let order = bin::depth_order(&splats);
+    let sorted: Vec<Splat<F>> = order
+        .par_iter()
+        .map(|&i| splats[i as usize].expect("sorted splats are visible"))
+        .collect();
+    let sorted_features: Vec<F> = order
+        .par_iter()
+        .flat_map_iter(|&i| {
+            g.features[i as usize * c..(i as usize + 1) * c]
+                .iter()
+                .copied()
+        })
+        .collect();
+    let bins = bin::bin(&sorted, &sorted_features, c, tiles_x, tiles_y);
     let background: Vec<F> = cfg.background.iter().map(|&b| F::c(b)).collect();
     let ctx = RasterCtx {
         width: cfg.camera.width,
@@ -152,15 +169,15 @@ pub fn forward<F: Real>(g: &HostGaussians<'_, F>, cfg: &SplatConfig) -> ForwardO
         background: &background,
         cutoff: cfg.cutoff,
     };
-    let (image, raster, evaluations) = raster::rasterize(&splats, g.features, &bins, &ctx);
-    let intersections = bins.ids.len();
+    let (image, raster, evaluations) = raster::rasterize(&bins, &ctx);
+    let intersections = bins.packed.len();
     ForwardOutput {
         image,
         aux,
         evaluations,
         intersections,
         state: ForwardState {
-            splats,
+            order,
             bins,
             raster,
             background,
@@ -188,17 +205,44 @@ pub fn backward<F: Real>(
         background: &state.background,
         cutoff: cfg.cutoff,
     };
-    let slots = raster::rasterize_backward(
-        &state.splats,
-        g.features,
-        &state.bins,
-        &ctx,
-        &state.raster,
-        grad_image,
-    );
+    let slots = raster::rasterize_backward(&state.bins, &ctx, &state.raster, grad_image);
     let slot = SLOT_FIXED + c;
     let bins = &state.bins;
 
+    // Per splat (depth order, in parallel): sum its intersection rows in a fixed order (hence
+    // deterministic), then the projection VJP.
+    let mut splat_features = vec![F::zero(); state.order.len() * c];
+    let per_splat: Vec<project::GaussGrad<F>> = state
+        .order
+        .par_iter()
+        .zip(bins.splat_ranges.par_iter())
+        .zip(splat_features.par_chunks_mut(c))
+        .with_min_len(256)
+        .map(|((&i, &[s0, s1]), feat)| {
+            let mut acc = [F::zero(); SLOT_FIXED];
+            for &k in &bins.isects_of_splat[s0 as usize..s1 as usize] {
+                let row = &slots[k as usize * slot..(k as usize + 1) * slot];
+                for (a, &r) in acc.iter_mut().zip(&row[..SLOT_FIXED]) {
+                    *a = *a + r;
+                }
+                for (a, &r) in feat.iter_mut().zip(&row[SLOT_FIXED..]) {
+                    *a = *a + r;
+                }
+            }
+            project::project_vjp(
+                &g.get(i as usize),
+                &cam,
+                [acc[0], acc[1]],
+                [acc[2], acc[3], acc[4]],
+                acc[5],
+            )
+        })
+        .collect();
+    // Scatter to the input layout, in parallel over Gaussians through the inverse order.
+    let mut position = vec![u32::MAX; n];
+    for (j, &i) in state.order.iter().enumerate() {
+        position[i as usize] = j as u32;
+    }
     let mut out = HostGradients {
         means: vec![F::zero(); 3 * n],
         quats: vec![F::zero(); 4 * n],
@@ -212,36 +256,21 @@ pub fn backward<F: Real>(
         .zip(out.quats.par_chunks_mut(4))
         .zip(out.scales.par_chunks_mut(3))
         .zip(out.opacities.par_iter_mut())
-        .zip(out.features.par_chunks_mut(c.max(1)))
+        .zip(out.features.par_chunks_mut(c))
         .zip(out.xy_offsets.par_chunks_mut(2))
-        .enumerate()
-        .with_min_len(256)
-        .for_each(|(i, (((((dm, dq), ds), dop), df), dxy))| {
-            let [s0, s1] = bins.gauss_ranges[i];
-            if s0 == s1 {
-                return;
+        .zip(position.par_iter())
+        .with_min_len(1024)
+        .for_each(|((((((dm, dq), ds), dop), df), dxy), &j)| {
+            if j == u32::MAX {
+                return; // culled: zero gradients
             }
-            let mut acc = vec![F::zero(); slot];
-            for &k in &bins.isect_of_gauss[s0 as usize..s1 as usize] {
-                let row = &slots[k as usize * slot..(k as usize + 1) * slot];
-                for (a, &r) in acc.iter_mut().zip(row) {
-                    *a = *a + r;
-                }
-            }
-            if c > 0 {
-                df.copy_from_slice(&acc[SLOT_FIXED..]);
-            }
-            let gg = project::project_vjp(
-                &g.get(i),
-                &cam,
-                [acc[0], acc[1]],
-                [acc[2], acc[3], acc[4]],
-                acc[5],
-            );
+            let gg = &per_splat[j as usize];
+            let feat = &splat_features[j as usize * c..(j as usize + 1) * c];
             dm.copy_from_slice(&gg.mean);
             dq.copy_from_slice(&gg.quat);
             ds.copy_from_slice(&gg.scale);
             *dop = gg.opacity;
+            df.copy_from_slice(feat);
             dxy.copy_from_slice(&gg.xy_offset);
         });
     out

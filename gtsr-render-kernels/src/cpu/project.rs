@@ -43,8 +43,14 @@ impl<F: Real> CamF<F> {
             height: c.height,
             near: F::c(c.near),
             far: F::c(c.far),
-            lim_x: [F::c((-m * w - c.cx) / c.fx), F::c(((1.0 + m) * w - c.cx) / c.fx)],
-            lim_y: [F::c((-m * h - c.cy) / c.fy), F::c(((1.0 + m) * h - c.cy) / c.fy)],
+            lim_x: [
+                F::c((-m * w - c.cx) / c.fx),
+                F::c(((1.0 + m) * w - c.cx) / c.fx),
+            ],
+            lim_y: [
+                F::c((-m * h - c.cy) / c.fy),
+                F::c(((1.0 + m) * h - c.cy) / c.fy),
+            ],
         }
     }
 }
@@ -73,6 +79,10 @@ pub(crate) struct Splat<F> {
     pub rect: [u32; 4],
     /// Half extents of that region in pixels.
     pub extent: [F; 2],
+    /// `ln(ALPHA_MIN / opacity) - 1e-3`: below this exponent alpha is certainly under the
+    /// cut-off, so the exponential need not be evaluated (the margin keeps the decision at the
+    /// boundary to the exact test).
+    pub skip_power: F,
 }
 
 impl<F> Splat<F> {
@@ -150,16 +160,12 @@ fn quat_to_rot_vjp<F: Real>(q: [F; 4], g: &M3<F>) -> [F; 4] {
     let two = F::c(2.0);
     let four = F::c(4.0);
     [
-        two * (-z * g[0][1] + y * g[0][2] + z * g[1][0] - x * g[1][2] - y * g[2][0]
-            + x * g[2][1]),
-        two * (y * g[0][1] + z * g[0][2] + y * g[1][0] - w * g[1][2] + z * g[2][0]
-            + w * g[2][1])
+        two * (-z * g[0][1] + y * g[0][2] + z * g[1][0] - x * g[1][2] - y * g[2][0] + x * g[2][1]),
+        two * (y * g[0][1] + z * g[0][2] + y * g[1][0] - w * g[1][2] + z * g[2][0] + w * g[2][1])
             - four * x * (g[1][1] + g[2][2]),
-        two * (x * g[0][1] + w * g[0][2] + x * g[1][0] + z * g[1][2] - w * g[2][0]
-            + z * g[2][1])
+        two * (x * g[0][1] + w * g[0][2] + x * g[1][0] + z * g[1][2] - w * g[2][0] + z * g[2][1])
             - four * y * (g[0][0] + g[2][2]),
-        two * (-w * g[0][1] + x * g[0][2] + w * g[1][0] + y * g[1][2] + x * g[2][0]
-            + y * g[2][1])
+        two * (-w * g[0][1] + x * g[0][2] + w * g[1][0] + y * g[1][2] + x * g[2][0] + y * g[2][1])
             - four * z * (g[0][0] + g[1][1]),
     ]
 }
@@ -256,7 +262,7 @@ fn project_core<F: Real>(g: &GaussIn<F>, cam: &CamF<F>) -> Result<Fwd<F>, f32> {
         dot3(js[1], j[1]) + blur,
     ];
     let det = cov[0] * cov[2] - cov[1] * cov[1];
-    if !(det > F::zero()) || !det.is_finite() {
+    if !det.is_finite() || det <= F::zero() {
         return Err(status::DEGENERATE);
     }
     let conic = [cov[2] / det, -cov[1] / det, cov[0] / det];
@@ -289,7 +295,7 @@ pub(crate) fn project_one<F: Real>(g: &GaussIn<F>, cam: &CamF<F>) -> Result<Spla
     // alpha = o * exp(-q/2) >= ALPHA_MIN  <=>  q <= 2 ln(o / ALPHA_MIN).
     let o = g.opacity;
     let level = F::c(2.0) * (o / F::c(ALPHA_MIN)).ln();
-    if !(level > F::zero()) {
+    if level.is_nan() || level <= F::zero() {
         return Err(status::NOT_ON_SCREEN);
     }
     let extent = [(level * f.cov[0]).sqrt(), (level * f.cov[2]).sqrt()];
@@ -328,6 +334,7 @@ pub(crate) fn project_one<F: Real>(g: &GaussIn<F>, cam: &CamF<F>) -> Result<Spla
         depth: z,
         rect,
         extent,
+        skip_power: -(F::c(0.5) * level) - F::c(1e-3),
     })
 }
 
@@ -367,7 +374,10 @@ pub(crate) fn project_vjp<F: Real>(
 
     // Conic -> covariance: dL/dcov = -Q G Q with G = [[ga, gb/2], [gb/2, gc]].
     let q = f.conic;
-    let gm = [[d_conic[0], half * d_conic[1]], [half * d_conic[1], d_conic[2]]];
+    let gm = [
+        [d_conic[0], half * d_conic[1]],
+        [half * d_conic[1], d_conic[2]],
+    ];
     let qm = [[q[0], q[1]], [q[1], q[2]]];
     let mut qg = [[zero; 2]; 2];
     for i in 0..2 {

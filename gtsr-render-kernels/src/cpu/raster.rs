@@ -32,12 +32,38 @@ pub(crate) struct RasterState<F> {
     pub n_contrib: Vec<u32>,
 }
 
-/// Alpha of a splat at offset `(dx, dy)` from its mean: `(alpha, raw, gauss)` where `raw =
-/// opacity * gauss` before the cap and `alpha` after cap and cut-off (0 when cut).
+/// The splat's exponent along one pixel row: `power(dx) = (ha * dx + lin) * dx + cst` with
+/// `ha = -a/2`, `lin = -b dy`, `cst = -c dy^2 / 2`, so that each pixel costs two fused steps.
+/// Forward and backward use this same evaluation, so their cut-off decisions agree exactly.
+#[derive(Clone, Copy)]
+struct RowPower<F> {
+    ha: F,
+    lin: F,
+    cst: F,
+}
+
+impl<F: Real> RowPower<F> {
+    #[inline(always)]
+    fn new(s: &Splat<F>, dy: F) -> Self {
+        let [a, b, c] = s.conic;
+        let h = F::c(-0.5);
+        Self {
+            ha: h * a,
+            lin: -(b * dy),
+            cst: h * c * dy * dy,
+        }
+    }
+
+    #[inline(always)]
+    fn at(&self, dx: F) -> F {
+        (self.ha * dx + self.lin) * dx + self.cst
+    }
+}
+
+/// Alpha of a splat from its exponent: `(alpha, raw, gauss, d alpha / d capped)` where
+/// `raw = opacity * gauss` before the cap and `alpha` is after cap and cut-off (0 when cut).
 #[inline(always)]
-fn eval_alpha<F: Real>(s: &Splat<F>, dx: F, dy: F, cutoff: AlphaCutoff) -> (F, F, F, F) {
-    let [a, b, c] = s.conic;
-    let power = F::c(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy;
+fn eval_alpha<F: Real>(s: &Splat<F>, power: F, cutoff: AlphaCutoff) -> (F, F, F, F) {
     let gauss = power.exp();
     let raw = s.opacity * gauss;
     let capped = raw.min(F::c(ALPHA_MAX));
@@ -61,6 +87,12 @@ fn eval_alpha<F: Real>(s: &Splat<F>, dx: F, dy: F, cutoff: AlphaCutoff) -> (F, F
     }
 }
 
+/// Bit mask of tile columns `[x0, x1)` (tile-local).
+#[inline(always)]
+fn col_mask(x0: u32, x1: u32) -> u32 {
+    ((1u64 << x1) as u32).wrapping_sub(1) & !((1u32 << x0) - 1)
+}
+
 #[inline(always)]
 fn tile_bounds(t: usize, ctx: &RasterCtx<'_, impl Real>) -> (u32, u32, u32, u32) {
     let ox = (t as u32 % ctx.tiles_x) * TILE_SIZE;
@@ -73,12 +105,25 @@ fn tile_bounds(t: usize, ctx: &RasterCtx<'_, impl Real>) -> (u32, u32, u32, u32)
 /// Blends every tile. Returns the image (row-major `[H, W, C + 1]`, the last channel is alpha),
 /// the state for the backward pass and the number of splat-pixel alpha evaluations.
 pub(crate) fn rasterize<F: Real>(
-    splats: &[Option<Splat<F>>],
-    features: &[F],
-    bins: &Bins,
+    bins: &Bins<F>,
     ctx: &RasterCtx<'_, F>,
 ) -> (Vec<F>, RasterState<F>, u64) {
-    let c = ctx.channels;
+    // Common channel counts get a copy with the count known at compile time (unrolled channel
+    // loops, no bounds checks); the rest take the general path.
+    match ctx.channels {
+        1 => rasterize_n::<F, 1>(bins, ctx),
+        2 => rasterize_n::<F, 2>(bins, ctx),
+        3 => rasterize_n::<F, 3>(bins, ctx),
+        4 => rasterize_n::<F, 4>(bins, ctx),
+        _ => rasterize_n::<F, 0>(bins, ctx),
+    }
+}
+
+fn rasterize_n<F: Real, const CH: usize>(
+    bins: &Bins<F>,
+    ctx: &RasterCtx<'_, F>,
+) -> (Vec<F>, RasterState<F>, u64) {
+    let c = if CH > 0 { CH } else { ctx.channels };
     let stride = c + 1;
     let n_tiles = bins.tile_ranges.len();
     let mut tile_buf = vec![F::zero(); n_tiles * TILE_PIXELS * stride];
@@ -93,44 +138,55 @@ pub(crate) fn rasterize<F: Real>(
         .enumerate()
         .map(|(t, ((img, trans), nc))| {
             let (ox, oy, ex, ey) = tile_bounds(t, ctx);
-            let mut done = [true; TILE_PIXELS];
-            let mut alive = 0usize;
-            for y in oy..ey {
-                for x in ox..ex {
-                    done[((y - oy) * TILE_SIZE + (x - ox)) as usize] = false;
-                    alive += 1;
-                }
+            // Bit x of alive[y] is set while pixel (x, y) of the tile still accumulates.
+            let mut alive = [0u32; TILE_SIZE as usize];
+            let full = col_mask(0, ex - ox);
+            for row in alive.iter_mut().take((ey - oy) as usize) {
+                *row = full;
             }
+            let mut n_alive = ((ex - ox) * (ey - oy)) as usize;
             let [start, end] = bins.tile_ranges[t];
             let mut evals = 0u64;
-            for (k, &g) in bins.ids[start as usize..end as usize].iter().enumerate() {
-                if alive == 0 {
+            let (start, end) = (start as usize, end as usize);
+            let tile_feats = bins.packed_features[start * c..end * c].chunks_exact(c.max(1));
+            for (k, (s, feat)) in bins.packed[start..end].iter().zip(tile_feats).enumerate() {
+                if n_alive == 0 {
                     break;
                 }
-                let s = splats[g as usize].as_ref().expect("binned splats are visible");
-                let feat = &features[g as usize * c..(g as usize + 1) * c];
                 let x0 = s.rect[0].max(ox);
                 let x1 = s.rect[2].min(ex);
                 let y0 = s.rect[1].max(oy);
                 let y1 = s.rect[3].min(ey);
+                let cols = col_mask(x0 - ox, x1 - ox);
+                // dx of the tile's column 0; column lx adds lx.
+                let dx0 = F::c(f64::from(ox) + 0.5) - s.xy[0];
                 for y in y0..y1 {
+                    let ly = (y - oy) as usize;
+                    let mut bits = alive[ly] & cols;
+                    if bits == 0 {
+                        continue;
+                    }
                     let dy = F::c(f64::from(y) + 0.5) - s.xy[1];
-                    for x in x0..x1 {
-                        let p = ((y - oy) * TILE_SIZE + (x - ox)) as usize;
-                        if done[p] {
+                    let rp = RowPower::new(s, dy);
+                    while bits != 0 {
+                        let lx = bits.trailing_zeros();
+                        bits &= bits - 1;
+                        evals += 1;
+                        let dx = dx0 + F::c(f64::from(lx));
+                        let power = rp.at(dx);
+                        if power < s.skip_power {
                             continue;
                         }
-                        evals += 1;
-                        let dx = F::c(f64::from(x) + 0.5) - s.xy[0];
-                        let (alpha, _, _, _) = eval_alpha(s, dx, dy, ctx.cutoff);
+                        let (alpha, _, _, _) = eval_alpha(s, power, ctx.cutoff);
                         if alpha <= F::zero() {
                             continue;
                         }
+                        let p = ly * TILE_SIZE as usize + lx as usize;
                         let tp = trans[p];
                         let next_t = tp * (F::one() - alpha);
                         if next_t < t_min {
-                            done[p] = true;
-                            alive -= 1;
+                            alive[ly] &= !(1u32 << lx);
+                            n_alive -= 1;
                             continue;
                         }
                         let w = alpha * tp;
@@ -170,14 +226,7 @@ pub(crate) fn rasterize<F: Real>(
                     .copy_from_slice(&tile_buf[p * stride..(p + 1) * stride]);
             }
         });
-    (
-        image,
-        RasterState {
-            t_final,
-            n_contrib,
-        },
-        evals,
-    )
+    (image, RasterState { t_final, n_contrib }, evals)
 }
 
 /// Number of gradient values stored per (tile, splat) intersection: screen mean (2), conic (3),
@@ -187,17 +236,34 @@ pub(crate) const SLOT_FIXED: usize = 6;
 /// Backward pass of [`rasterize`]: from the gradient of the image (row-major `[H, W, C + 1]`) to
 /// one gradient row per intersection (layout: `d_xy[2], d_conic[3], d_opacity, d_features[C]`).
 pub(crate) fn rasterize_backward<F: Real>(
-    splats: &[Option<Splat<F>>],
-    features: &[F],
-    bins: &Bins,
+    bins: &Bins<F>,
     ctx: &RasterCtx<'_, F>,
     state: &RasterState<F>,
     grad_image: &[F],
 ) -> Vec<F> {
-    let c = ctx.channels;
+    let args = (bins, ctx, state, grad_image);
+    match ctx.channels {
+        1 => rasterize_backward_n::<F, 1>(args),
+        2 => rasterize_backward_n::<F, 2>(args),
+        3 => rasterize_backward_n::<F, 3>(args),
+        4 => rasterize_backward_n::<F, 4>(args),
+        _ => rasterize_backward_n::<F, 0>(args),
+    }
+}
+
+type BackwardArgs<'a, 'b, F> = (
+    &'a Bins<F>,
+    &'a RasterCtx<'b, F>,
+    &'a RasterState<F>,
+    &'a [F],
+);
+
+fn rasterize_backward_n<F: Real, const CH: usize>(args: BackwardArgs<'_, '_, F>) -> Vec<F> {
+    let (bins, ctx, state, grad_image) = args;
+    let c = if CH > 0 { CH } else { ctx.channels };
     let stride = c + 1;
     let slot = SLOT_FIXED + c;
-    let mut slots = vec![F::zero(); bins.ids.len() * slot];
+    let mut slots = vec![F::zero(); bins.packed.len() * slot];
     // Disjoint per-tile views of the slot buffer.
     let mut views: Vec<&mut [F]> = Vec::with_capacity(bins.tile_ranges.len());
     let mut rest: &mut [F] = &mut slots;
@@ -224,52 +290,84 @@ pub(crate) fn rasterize_backward<F: Real>(
         let mut back = vec![F::zero(); TILE_PIXELS * c];
         let mut g_col = vec![F::zero(); TILE_PIXELS * c];
         let mut g_alpha = [F::zero(); TILE_PIXELS];
-        let mut max_nc = 0u32;
+        // Pixels in decreasing order of their contributor count: walking the list backwards,
+        // pixel p joins (its bit in `active` is set) once k < n_contrib[p].
+        let mut by_nc: Vec<(u32, u8)> = Vec::with_capacity(TILE_PIXELS);
         for y in oy..ey {
+            let ly = (y - oy) as usize;
             for x in ox..ex {
-                let p = ((y - oy) * TILE_SIZE + (x - ox)) as usize;
+                let p = ly * TILE_SIZE as usize + (x - ox) as usize;
                 let gi = (y as usize * w + x as usize) * stride;
                 for ch in 0..c {
                     g_col[p * c + ch] = grad_image[gi + ch];
                     back[p * c + ch] = t_fin[p] * ctx.background[ch];
                 }
                 g_alpha[p] = grad_image[gi + c];
-                max_nc = max_nc.max(nc[p]);
+                if nc[p] > 0 {
+                    by_nc.push((nc[p], p as u8));
+                }
             }
         }
-        let ids = &bins.ids[start as usize..end as usize];
-        for k in (0..(max_nc as usize).min(ids.len())).rev() {
-            let g = ids[k] as usize;
-            let s = splats[g].as_ref().expect("binned splats are visible");
-            let feat = &features[g * c..(g + 1) * c];
+        by_nc.sort_unstable_by(|a, b| b.cmp(a));
+        let mut next_pixel = 0usize;
+        let mut active = [0u32; TILE_SIZE as usize];
+        let max_nc = by_nc.first().map_or(0, |e| e.0);
+        let (start, end) = (start as usize, end as usize);
+        let tile_splats = &bins.packed[start..end];
+        let tile_feats = &bins.packed_features[start * c..end * c];
+        for k in (0..(max_nc as usize).min(end - start)).rev() {
+            while next_pixel < by_nc.len() && by_nc[next_pixel].0 as usize > k {
+                let p = by_nc[next_pixel].1 as usize;
+                active[p / TILE_SIZE as usize] |= 1 << (p % TILE_SIZE as usize);
+                next_pixel += 1;
+            }
+            let s = &tile_splats[k];
+            let feat = &tile_feats[k * c..(k + 1) * c];
             let x0 = s.rect[0].max(ox);
             let x1 = s.rect[2].min(ex);
             let y0 = s.rect[1].max(oy);
             let y1 = s.rect[3].min(ey);
+            let cols = col_mask(x0 - ox, x1 - ox);
+            let dx0 = F::c(f64::from(ox) + 0.5) - s.xy[0];
             let [ca, cb, cc] = s.conic;
             let row = &mut out[k * slot..(k + 1) * slot];
-            let (mut du, mut dv, mut da, mut db, mut dc, mut dop) =
-                (F::zero(), F::zero(), F::zero(), F::zero(), F::zero(), F::zero());
+            let (mut du, mut dv, mut da, mut db, mut dc, mut dop) = (
+                F::zero(),
+                F::zero(),
+                F::zero(),
+                F::zero(),
+                F::zero(),
+                F::zero(),
+            );
             for y in y0..y1 {
+                let ly = (y - oy) as usize;
+                let mut bits = active[ly] & cols;
+                if bits == 0 {
+                    continue;
+                }
                 let dy = F::c(f64::from(y) + 0.5) - s.xy[1];
-                for x in x0..x1 {
-                    let p = ((y - oy) * TILE_SIZE + (x - ox)) as usize;
-                    if k as u32 >= nc[p] {
+                let rp = RowPower::new(s, dy);
+                while bits != 0 {
+                    let lx = bits.trailing_zeros();
+                    bits &= bits - 1;
+                    let p = ly * TILE_SIZE as usize + lx as usize;
+                    let dx = dx0 + F::c(f64::from(lx));
+                    let power = rp.at(dx);
+                    if power < s.skip_power {
                         continue;
                     }
-                    let dx = F::c(f64::from(x) + 0.5) - s.xy[0];
-                    let (alpha, raw, gauss, dalpha_dcapped) = eval_alpha(s, dx, dy, ctx.cutoff);
+                    let (alpha, raw, gauss, dalpha_dcapped) = eval_alpha(s, power, ctx.cutoff);
                     if alpha <= F::zero() {
                         continue;
                     }
-                    let om = one - alpha;
-                    let t_i = trans[p] / om;
+                    let inv_om = one / (one - alpha);
+                    let t_i = trans[p] * inv_om;
                     let w_i = alpha * t_i;
-                    let mut d_alpha = g_alpha[p] * t_fin[p] / om;
+                    let mut d_alpha = g_alpha[p] * t_fin[p] * inv_om;
                     for ch in 0..c {
                         let gcol = g_col[p * c + ch];
                         row[SLOT_FIXED + ch] = row[SLOT_FIXED + ch] + w_i * gcol;
-                        d_alpha = d_alpha + gcol * (t_i * feat[ch] - back[p * c + ch] / om);
+                        d_alpha = d_alpha + gcol * (t_i * feat[ch] - back[p * c + ch] * inv_om);
                         back[p * c + ch] = back[p * c + ch] + feat[ch] * w_i;
                     }
                     trans[p] = t_i;

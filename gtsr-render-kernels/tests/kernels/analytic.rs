@@ -20,13 +20,19 @@ fn isotropic_gaussian_alpha_profile() {
         camera: camera.clone(),
     };
     for dtype in [DType::F64, DType::F32] {
-        let out = render(scene.inputs(&Device::ndarray(), dtype), &scene.config(AlphaCutoff::Hard))
-            .unwrap();
+        let out = render(
+            scene.inputs(&Device::ndarray(), dtype),
+            &scene.config(AlphaCutoff::Hard),
+        )
+        .unwrap();
         let alpha = host(out.alpha);
         // The mean projects onto the centre of pixel (w/2, h/2).
         let (ci, cj) = ((w / 2) as usize, (h / 2) as usize);
         let centre = alpha[cj * w as usize + ci];
-        assert!((centre - o).abs() < 1e-6, "{dtype:?}: alpha at centre {centre} != {o}");
+        assert!(
+            (centre - o).abs() < 1e-6,
+            "{dtype:?}: alpha at centre {centre} != {o}"
+        );
         // sigma^2 in pixels: (f s / z)^2 plus the 0.3 px^2 low-pass filter.
         let sigma2 = (f * s / z).powi(2) + 0.3;
         let mut checked = 0;

@@ -9,7 +9,11 @@ pub fn host<const D: usize>(t: Tensor<D>) -> Vec<f64> {
 
 /// Renders through the public API and returns `[H, W, C + 1]` (image channels then alpha).
 pub fn render_host(scene: &HostScene, dtype: DType, cutoff: AlphaCutoff) -> Vec<f64> {
-    let out = render(scene.inputs(&Device::ndarray(), dtype), &scene.config(cutoff)).unwrap();
+    let out = render(
+        scene.inputs(&Device::ndarray(), dtype),
+        &scene.config(cutoff),
+    )
+    .unwrap();
     let img = host(out.image);
     let alpha = host(out.alpha);
     let c = scene.channels;

@@ -11,13 +11,22 @@ fn bad_shapes_and_backgrounds_are_rejected_with_clear_errors() {
     let mut inp = scene.inputs(&device, DType::F32);
     inp.quats = Tensor::zeros([10, 3], &device);
     let err = render(inp, &cfg).unwrap_err();
-    assert!(matches!(err, RenderError::Shape { name: "quats", .. }), "{err}");
+    assert!(
+        matches!(err, RenderError::Shape { name: "quats", .. }),
+        "{err}"
+    );
     assert!(err.to_string().contains("[N, 4]"), "{err}");
 
     let mut bad_bg = cfg.clone();
     bad_bg.background = vec![0.0; 2];
     let err = render(scene.inputs(&device, DType::F32), &bad_bg).unwrap_err();
-    assert_eq!(err, RenderError::Background { background: 2, features: 3 });
+    assert_eq!(
+        err,
+        RenderError::Background {
+            background: 2,
+            features: 3
+        }
+    );
 
     let mut nan_bg = cfg.clone();
     nan_bg.background[1] = f64::NAN;
@@ -42,12 +51,16 @@ fn degenerate_cameras_are_rejected() {
     let e = Camera::new(50.0, 50.0, 16.0, 16.0, 0, 32, r, [0.0; 3], 0.01, 100.0).unwrap_err();
     assert!(matches!(e, CameraError::EmptyImage { .. }));
     let sheared = [[1.0, 0.2, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    let e = Camera::new(50.0, 50.0, 16.0, 16.0, 32, 32, sheared, [0.0; 3], 0.01, 100.0)
-        .unwrap_err();
+    let e = Camera::new(
+        50.0, 50.0, 16.0, 16.0, 32, 32, sheared, [0.0; 3], 0.01, 100.0,
+    )
+    .unwrap_err();
     assert!(matches!(e, CameraError::NotRigid { .. }), "{e}");
     let mirror = [[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    let e = Camera::new(50.0, 50.0, 16.0, 16.0, 32, 32, mirror, [0.0; 3], 0.01, 100.0)
-        .unwrap_err();
+    let e = Camera::new(
+        50.0, 50.0, 16.0, 16.0, 32, 32, mirror, [0.0; 3], 0.01, 100.0,
+    )
+    .unwrap_err();
     assert!(matches!(e, CameraError::NotRigid { .. }), "{e}");
     let e = Camera::new(50.0, 50.0, 16.0, 16.0, 32, 32, r, [0.0; 3], 1.0, 0.5).unwrap_err();
     assert!(matches!(e, CameraError::BadClip { .. }));

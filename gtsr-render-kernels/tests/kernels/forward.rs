@@ -20,7 +20,10 @@ fn spec(count: usize, size: (u32, u32)) -> RandomSceneSpec {
 
 fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
     assert_eq!(a.len(), b.len());
-    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
 }
 
 /// Gaussians centred on tile corners and edges, large enough to straddle several tiles.
@@ -69,7 +72,10 @@ fn forward_matches_brute_force_in_f64() {
             let got = render_host(scene, DType::F64, cutoff);
             let want = render_reference(&scene.host(), &scene.config(cutoff));
             let d = max_abs_diff(&got, &want);
-            assert!(d <= 1e-6, "scene {i} ({cutoff:?}): max |tiled - brute force| = {d:e}");
+            assert!(
+                d <= 1e-6,
+                "scene {i} ({cutoff:?}): max |tiled - brute force| = {d:e}"
+            );
             // The scene must actually draw something.
             let c = scene.channels;
             let covered = want.chunks(c + 1).filter(|p| p[c] > 0.01).count();

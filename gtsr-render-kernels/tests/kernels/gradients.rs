@@ -22,7 +22,7 @@ fn check_scene(scene: &HostScene, seed: u64) -> f64 {
         let analytic = &grads[k];
         let scale = analytic.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let mut probe = scene.clone();
-        for i in 0..analytic.len() {
+        for (i, &a) in analytic.iter().enumerate() {
             let x = input_mut(&mut probe, k)[i];
             let step = 1e-6 * x.abs().max(1.0);
             input_mut(&mut probe, k)[i] = x + step;
@@ -31,7 +31,6 @@ fn check_scene(scene: &HostScene, seed: u64) -> f64 {
             let down = loss(&probe, &weights);
             input_mut(&mut probe, k)[i] = x;
             let fd = (up - down) / (2.0 * step);
-            let a = analytic[i];
             // Relative error, with a floor so that entries that are zero up to rounding do not
             // divide by ~0.
             let denom = a.abs().max(fd.abs()).max(1e-3 * scale).max(1e-9);

@@ -18,7 +18,11 @@ fn stiff_cases_stay_finite_in_f32_and_f64() {
             for cutoff in [AlphaCutoff::Hard, AlphaCutoff::Smooth] {
                 let (grads, out) = autodiff_grads(s, dtype, cutoff, &weights);
                 let bad = out.iter().filter(|v| !v.is_finite()).count();
-                assert_eq!(bad, 0, "{} {dtype:?} {cutoff:?}: {bad} non-finite outputs", case.name);
+                assert_eq!(
+                    bad, 0,
+                    "{} {dtype:?} {cutoff:?}: {bad} non-finite outputs",
+                    case.name
+                );
                 for (g, name) in grads.iter().zip(INPUT_NAMES) {
                     let bad = g.iter().filter(|v| !v.is_finite()).count();
                     assert_eq!(
@@ -40,9 +44,13 @@ fn stiff_cases_stay_finite_in_f32_and_f64() {
 }
 
 fn aux_of(case_name: &str) -> (Vec<f64>, gtsr_render_kernels::scenes::HostScene) {
-    let case = stiff_cases().into_iter().find(|c| c.name == case_name).unwrap();
+    let case = stiff_cases()
+        .into_iter()
+        .find(|c| c.name == case_name)
+        .unwrap();
     let out = gtsr_render_kernels::render(
-        case.scene.inputs(&burn::tensor::Device::ndarray(), DType::F32),
+        case.scene
+            .inputs(&burn::tensor::Device::ndarray(), DType::F32),
         &case.scene.config(AlphaCutoff::Hard),
     )
     .unwrap();
@@ -55,10 +63,18 @@ fn non_finite_parameters_are_culled_with_zero_gradients() {
     let n = scene.len();
     // The last five Gaussians carry a NaN or an infinity each.
     for i in n - 5..n {
-        assert_eq!(aux[4 * i + 3], f64::from(status::NON_FINITE), "Gaussian {i}");
+        assert_eq!(
+            aux[4 * i + 3],
+            f64::from(status::NON_FINITE),
+            "Gaussian {i}"
+        );
         assert_eq!(aux[4 * i], 0.0);
     }
-    assert!(aux[..4 * (n - 5)].chunks(4).any(|a| a[3] == f64::from(status::VISIBLE)));
+    assert!(
+        aux[..4 * (n - 5)]
+            .chunks(4)
+            .any(|a| a[3] == f64::from(status::VISIBLE))
+    );
     let (h, w) = (scene.camera.height as usize, scene.camera.width as usize);
     let weights = loss_weights(3, h * w * 4);
     let (grads, _) = autodiff_grads(&scene, DType::F32, AlphaCutoff::Hard, &weights);

@@ -19,19 +19,31 @@ struct Params(Vec<Vec<f64>>);
 
 const COLS: [usize; 6] = [3, 3, 4, 1, 3, 9];
 
-fn model_loss(p: &Params, cfg: &SplatConfig, device: &Device, weights: &[f64]) -> (Tensor<1>, Vec<Tensor<2>>) {
+fn model_loss(
+    p: &Params,
+    cfg: &SplatConfig,
+    device: &Device,
+    weights: &[f64],
+) -> (Tensor<1>, Vec<Tensor<2>>) {
     let leaves: Vec<Tensor<2>> = p
         .0
         .iter()
         .zip(COLS)
         .map(|(v, c)| {
-            let t = Tensor::<2>::from_data(TensorData::new(v.clone(), [N, c]), (device, DType::F64));
-            if device.is_autodiff() { t.require_grad() } else { t }
+            let t =
+                Tensor::<2>::from_data(TensorData::new(v.clone(), [N, c]), (device, DType::F64));
+            if device.is_autodiff() {
+                t.require_grad()
+            } else {
+                t
+            }
         })
         .collect();
-    let [means, log_scales, quats, logits, sh0, sh1] = [0, 1, 2, 3, 4, 5].map(|k| leaves[k].clone());
+    let [means, log_scales, quats, logits, sh0, sh1] =
+        [0, 1, 2, 3, 4, 5].map(|k| leaves[k].clone());
     let cam = cfg.camera.centre();
-    let centre = Tensor::<2>::from_data(TensorData::new(cam.to_vec(), [1, 3]), (device, DType::F64));
+    let centre =
+        Tensor::<2>::from_data(TensorData::new(cam.to_vec(), [1, 3]), (device, DType::F64));
     // View directions.
     let d = means.clone() - centre;
     let dn = d.clone() / (d.clone() * d).sum_dim(1).sqrt();
@@ -44,7 +56,8 @@ fn model_loss(p: &Params, cfg: &SplatConfig, device: &Device, weights: &[f64]) -
     let c1 = 0.488_602_511_902_919_9;
     let sh1 = sh1.reshape([N, 3, 3]);
     let band = |k: usize| sh1.clone().slice([0..N, k..k + 1, 0..3]).reshape([N, 3]);
-    let colour = sh0 * 0.282_094_791_773_878_1 - band(0) * y.clone() * c1 + band(1) * z.clone() * c1
+    let colour = sh0 * 0.282_094_791_773_878_1 - band(0) * y.clone() * c1
+        + band(1) * z.clone() * c1
         - band(2) * x.clone() * c1
         + 0.5;
     // Normal = the local z axis of the (normalised) rotation; Schlick Fresnel with F0 = 0.04.
@@ -70,7 +83,10 @@ fn model_loss(p: &Params, cfg: &SplatConfig, device: &Device, weights: &[f64]) -
     let out = render(inputs, cfg).unwrap();
     let (h, w) = (cfg.camera.height as usize, cfg.camera.width as usize);
     let joined = Tensor::cat(vec![out.image, out.alpha.reshape([h, w, 1])], 2);
-    let wt = Tensor::<3>::from_data(TensorData::new(weights.to_vec(), [h, w, 4]), (device, DType::F64));
+    let wt = Tensor::<3>::from_data(
+        TensorData::new(weights.to_vec(), [h, w, 4]),
+        (device, DType::F64),
+    );
     ((joined * wt).sum(), leaves)
 }
 
@@ -91,7 +107,11 @@ fn gradients_flow_through_upstream_burn_expressions() {
     );
     let cfg = scene.config(AlphaCutoff::Smooth);
     let mut rng = StdRng::seed_from_u64(8);
-    let mut rnd = |n: usize, lo: f64, hi: f64| (0..n).map(|_| rng.random_range(lo..hi)).collect::<Vec<f64>>();
+    let mut rnd = |n: usize, lo: f64, hi: f64| {
+        (0..n)
+            .map(|_| rng.random_range(lo..hi))
+            .collect::<Vec<f64>>()
+    };
     let params = Params(vec![
         scene.means.clone(),
         scene.scales.iter().map(|s| s.ln()).collect(),
@@ -112,7 +132,7 @@ fn gradients_flow_through_upstream_burn_expressions() {
         let scale = g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         assert!(scale > 0.0, "{}: zero gradient", names[k]);
         let mut p = params.clone();
-        for i in 0..g.len() {
+        for (i, &gi) in g.iter().enumerate() {
             let x = p.0[k][i];
             let h = 1e-6 * x.abs().max(1.0);
             p.0[k][i] = x + h;
@@ -121,8 +141,12 @@ fn gradients_flow_through_upstream_burn_expressions() {
             let down = eval(&p);
             p.0[k][i] = x;
             let fd = (up - down) / (2.0 * h);
-            let rel = (g[i] - fd).abs() / g[i].abs().max(fd.abs()).max(1e-3 * scale).max(1e-9);
-            assert!(rel <= 1e-4, "{}[{i}]: autodiff {:e} vs finite difference {fd:e}", names[k], g[i]);
+            let rel = (gi - fd).abs() / gi.abs().max(fd.abs()).max(1e-3 * scale).max(1e-9);
+            assert!(
+                rel <= 1e-4,
+                "{}[{i}]: autodiff {gi:e} vs finite difference {fd:e}",
+                names[k]
+            );
         }
     }
 }
