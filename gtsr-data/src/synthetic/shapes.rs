@@ -1,0 +1,518 @@
+//! Procedural shapes, each with an exact analytic description (for ground-truth tests) and a
+//! fine watertight triangle mesh (what the tracer renders and `mesh.ply` stores).
+//!
+//! All shapes are normalised to a bounding radius of 1 around the origin; z is up.
+//!
+//! * [`ShapeKind::Sphere`]: unit sphere; icosphere mesh (5120 triangles, chord error
+//!   below 5e-4).
+//! * [`ShapeKind::Torus`]: major radius 0.7, minor radius 0.3, axis z; tube mesh.
+//! * [`ShapeKind::Bear`]: union of ten axis-aligned ellipsoids (body, head, snout, ears,
+//!   arms, legs); marching-tetrahedra mesh of the union with vertices projected onto the
+//!   ellipsoids.
+//! * [`ShapeKind::TorusKnot`]: tube of radius 0.1 around a (2,3) torus knot (thin
+//!   features); tube mesh with rotation-minimising frames.
+
+use std::collections::HashMap;
+use std::f32::consts::TAU;
+
+use glam::Vec3;
+
+use crate::ply::TriMesh;
+
+/// The procedural shapes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ShapeKind {
+    /// Unit sphere.
+    Sphere,
+    /// Torus, radii 0.7 and 0.3.
+    Torus,
+    /// Union of ellipsoids shaped like a teddy bear.
+    Bear,
+    /// Thin tube around a (2,3) torus knot.
+    TorusKnot,
+}
+
+/// Torus major radius.
+pub const TORUS_R: f32 = 0.7;
+/// Torus minor radius.
+pub const TORUS_TUBE: f32 = 0.3;
+/// Torus-knot tube radius.
+pub const KNOT_TUBE: f32 = 0.1;
+const KNOT_SCALE: f32 = (1.0 - KNOT_TUBE) / 3.0;
+
+impl ShapeKind {
+    /// Every shape.
+    pub const ALL: [ShapeKind; 4] = [
+        ShapeKind::Sphere,
+        ShapeKind::Torus,
+        ShapeKind::Bear,
+        ShapeKind::TorusKnot,
+    ];
+
+    /// The name used on the command line and in `meta.json`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            ShapeKind::Sphere => "sphere",
+            ShapeKind::Torus => "torus",
+            ShapeKind::Bear => "bear",
+            ShapeKind::TorusKnot => "torus_knot",
+        }
+    }
+
+    /// The ground-truth mesh (watertight, outward counter-clockwise triangles).
+    pub fn mesh(&self) -> TriMesh {
+        match self {
+            ShapeKind::Sphere => icosphere(4),
+            ShapeKind::Torus => tube_mesh(torus_curve, TORUS_TUBE, 256, 96),
+            ShapeKind::Bear => bear_mesh(112),
+            ShapeKind::TorusKnot => tube_mesh(knot_curve, KNOT_TUBE, 1024, 40),
+        }
+    }
+
+    /// Exact point-membership test of the analytic shape.
+    pub fn contains(&self, p: Vec3) -> bool {
+        match self {
+            ShapeKind::Sphere => p.length_squared() <= 1.0,
+            ShapeKind::Torus => {
+                let q = (p.truncate().length() - TORUS_R, p.z);
+                q.0 * q.0 + q.1 * q.1 <= TORUS_TUBE * TORUS_TUBE
+            }
+            ShapeKind::Bear => bear_ellipsoids().iter().any(|e| e.implicit(p) <= 0.0),
+            ShapeKind::TorusKnot => {
+                curve_min(knot_curve, |c| (c - p).length_squared()) <= KNOT_TUBE * KNOT_TUBE
+            }
+        }
+    }
+
+    /// Exact test of whether the ray `o + t d`, `t > 0`, hits the analytic shape, for
+    /// origins outside the bounding sphere (silhouette ground truth). `d` must be unit.
+    pub fn ray_hits(&self, o: Vec3, d: Vec3) -> bool {
+        // Distance from the line to a point; the shapes lie in front of outside origins.
+        let line_d2 = |c: Vec3| {
+            let v = c - o;
+            let t = v.dot(d);
+            if t < 0.0 {
+                v.length_squared()
+            } else {
+                (v - d * t).length_squared()
+            }
+        };
+        match self {
+            ShapeKind::Sphere => line_d2(Vec3::ZERO) <= 1.0,
+            // A torus / tube is the union of balls centred on its core curve.
+            ShapeKind::Torus => curve_min(torus_curve, line_d2) <= TORUS_TUBE * TORUS_TUBE,
+            ShapeKind::TorusKnot => curve_min(knot_curve, line_d2) <= KNOT_TUBE * KNOT_TUBE,
+            ShapeKind::Bear => bear_ellipsoids().iter().any(|e| e.ray_hits(o, d)),
+        }
+    }
+}
+
+impl std::fmt::Display for ShapeKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for ShapeKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        ShapeKind::ALL
+            .into_iter()
+            .find(|k| k.name() == s || (s == "knot" && *k == ShapeKind::TorusKnot))
+            .ok_or_else(|| format!("unknown shape '{s}' (sphere, torus, bear, torus_knot)"))
+    }
+}
+
+fn torus_curve(t: f32) -> Vec3 {
+    Vec3::new(TORUS_R * t.cos(), TORUS_R * t.sin(), 0.0)
+}
+
+/// The (2,3) torus knot core curve, `t` in `[0, 2 pi)`, scaled so the tube fits radius 1.
+pub fn knot_curve(t: f32) -> Vec3 {
+    let r = 2.0 + (3.0 * t).cos();
+    Vec3::new(r * (2.0 * t).cos(), r * (2.0 * t).sin(), (3.0 * t).sin()) * KNOT_SCALE
+}
+
+/// Minimum of `f(curve(t))` over `t in [0, 2 pi)`: dense sampling, then golden-section
+/// refinement around the best few samples.
+fn curve_min(curve: fn(f32) -> Vec3, f: impl Fn(Vec3) -> f32) -> f32 {
+    const N: usize = 2048;
+    let h = TAU / N as f32;
+    let vals: Vec<f32> = (0..N).map(|i| f(curve(i as f32 * h))).collect();
+    let mut best = f32::INFINITY;
+    for i in 0..N {
+        let (a, b, c) = (vals[(i + N - 1) % N], vals[i], vals[(i + 1) % N]);
+        if b <= a && b <= c {
+            // local minimum: refine on [t - h, t + h]
+            let (mut lo, mut hi) = ((i as f32 - 1.0) * h, (i as f32 + 1.0) * h);
+            let g = 0.618_034f32;
+            for _ in 0..30 {
+                let m1 = hi - g * (hi - lo);
+                let m2 = lo + g * (hi - lo);
+                if f(curve(m1)) < f(curve(m2)) {
+                    hi = m2;
+                } else {
+                    lo = m1;
+                }
+            }
+            best = best.min(f(curve(0.5 * (lo + hi)))).min(b);
+        }
+    }
+    best
+}
+
+/// An axis-aligned ellipsoid.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ellipsoid {
+    /// Centre.
+    pub centre: Vec3,
+    /// Semi-axes.
+    pub radii: Vec3,
+}
+
+impl Ellipsoid {
+    /// `|(p - c) / r|^2 - 1`: negative inside.
+    pub fn implicit(&self, p: Vec3) -> f32 {
+        ((p - self.centre) / self.radii).length_squared() - 1.0
+    }
+
+    /// Approximate signed distance (exact on the surface, good near it).
+    fn sdf(&self, p: Vec3) -> f32 {
+        let q = (p - self.centre) / self.radii;
+        let k0 = q.length();
+        let k1 = (q / self.radii).length();
+        if k1 == 0.0 {
+            -self.radii.min_element()
+        } else {
+            k0 * (k0 - 1.0) / k1
+        }
+    }
+
+    fn ray_hits(&self, o: Vec3, d: Vec3) -> bool {
+        let oc = (o - self.centre) / self.radii;
+        let dd = d / self.radii;
+        let a = dd.length_squared();
+        let b = oc.dot(dd);
+        let c = oc.length_squared() - 1.0;
+        let disc = b * b - a * c;
+        disc >= 0.0 && (-b + disc.sqrt()) > 0.0
+    }
+
+    fn project(&self, p: Vec3) -> Vec3 {
+        let mut x = p;
+        for _ in 0..4 {
+            let q = (x - self.centre) / self.radii;
+            let g = q.length_squared() - 1.0;
+            let grad = 2.0 * q / self.radii;
+            let gl = grad.length_squared();
+            if gl < 1e-12 {
+                break;
+            }
+            x -= grad * (g / gl);
+        }
+        x
+    }
+}
+
+/// The bear's ellipsoids, normalised to a bounding radius of 1.
+pub fn bear_ellipsoids() -> &'static [Ellipsoid] {
+    static CELL: std::sync::OnceLock<Vec<Ellipsoid>> = std::sync::OnceLock::new();
+    CELL.get_or_init(make_bear_ellipsoids)
+}
+
+fn make_bear_ellipsoids() -> Vec<Ellipsoid> {
+    let raw = [
+        // body
+        (Vec3::new(0.0, 0.0, -0.25), Vec3::new(0.55, 0.45, 0.62)),
+        // head
+        (Vec3::new(0.0, -0.05, 0.62), Vec3::new(0.36, 0.33, 0.31)),
+        // snout
+        (Vec3::new(0.0, -0.34, 0.55), Vec3::new(0.14, 0.12, 0.1)),
+        // ears
+        (Vec3::new(0.27, -0.02, 0.9), Vec3::new(0.12, 0.06, 0.12)),
+        (Vec3::new(-0.27, -0.02, 0.9), Vec3::new(0.12, 0.06, 0.12)),
+        // arms
+        (Vec3::new(0.52, -0.12, 0.0), Vec3::new(0.14, 0.14, 0.34)),
+        (Vec3::new(-0.52, -0.12, 0.0), Vec3::new(0.14, 0.14, 0.34)),
+        // legs
+        (Vec3::new(0.3, -0.18, -0.8), Vec3::new(0.18, 0.24, 0.17)),
+        (Vec3::new(-0.3, -0.18, -0.8), Vec3::new(0.18, 0.24, 0.17)),
+        // tail
+        (Vec3::new(0.0, 0.46, -0.55), Vec3::new(0.08, 0.07, 0.08)),
+    ];
+    // Exact bounding radius of the union: the largest |p| over each ellipsoid's surface,
+    // found by dense sampling plus a small safety margin of one sample spacing.
+    let mut rmax = 0.0f32;
+    for (c, r) in raw {
+        for i in 0..=128 {
+            let th = std::f32::consts::PI * i as f32 / 128.0;
+            for j in 0..256 {
+                let ph = TAU * j as f32 / 256.0;
+                let u = Vec3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos());
+                rmax = rmax.max((c + r * u).length());
+            }
+        }
+    }
+    let s = 1.0 / rmax;
+    raw.iter()
+        .map(|&(c, r)| Ellipsoid {
+            centre: c * s,
+            radii: r * s,
+        })
+        .collect()
+}
+
+/// Icosphere with `levels` subdivisions (20 * 4^levels triangles), unit radius.
+pub fn icosphere(levels: u32) -> TriMesh {
+    let t = (1.0 + 5f32.sqrt()) / 2.0;
+    let mut pos: Vec<Vec3> = [
+        (-1.0, t, 0.0),
+        (1.0, t, 0.0),
+        (-1.0, -t, 0.0),
+        (1.0, -t, 0.0),
+        (0.0, -1.0, t),
+        (0.0, 1.0, t),
+        (0.0, -1.0, -t),
+        (0.0, 1.0, -t),
+        (t, 0.0, -1.0),
+        (t, 0.0, 1.0),
+        (-t, 0.0, -1.0),
+        (-t, 0.0, 1.0),
+    ]
+    .iter()
+    .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
+    .collect();
+    let mut tris: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..levels {
+        let mut cache: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut mid = |a: u32, b: u32, pos: &mut Vec<Vec3>| -> u32 {
+            let key = (a.min(b), a.max(b));
+            *cache.entry(key).or_insert_with(|| {
+                pos.push((pos[a as usize] + pos[b as usize]).normalize());
+                pos.len() as u32 - 1
+            })
+        };
+        let mut next = Vec::with_capacity(tris.len() * 4);
+        for [a, b, c] in tris {
+            let ab = mid(a, b, &mut pos);
+            let bc = mid(b, c, &mut pos);
+            let ca = mid(c, a, &mut pos);
+            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        tris = next;
+    }
+    orient_outward(TriMesh {
+        positions: pos,
+        triangles: tris,
+    })
+}
+
+fn orient_outward(mut m: TriMesh) -> TriMesh {
+    if m.volume() < 0.0 {
+        for t in m.triangles.iter_mut() {
+            t.swap(1, 2);
+        }
+    }
+    m
+}
+
+/// A tube of radius `radius` around a closed curve (`t` in `[0, 2 pi)`), with `n_along`
+/// rings of `n_around` vertices, framed by parallel transport with the closing twist
+/// spread evenly.
+pub fn tube_mesh(curve: fn(f32) -> Vec3, radius: f32, n_along: usize, n_around: usize) -> TriMesh {
+    let c: Vec<Vec3> = (0..n_along)
+        .map(|i| curve(TAU * i as f32 / n_along as f32))
+        .collect();
+    let tang: Vec<Vec3> = (0..n_along)
+        .map(|i| (c[(i + 1) % n_along] - c[(i + n_along - 1) % n_along]).normalize())
+        .collect();
+    let mut normals = Vec::with_capacity(n_along);
+    let mut n = tang[0].any_orthonormal_vector();
+    normals.push(n);
+    for t in tang.iter().skip(1) {
+        n = (n - *t * n.dot(*t)).normalize();
+        normals.push(n);
+    }
+    // Transport once more to the start and measure the twist.
+    let n_end = (n - tang[0] * n.dot(tang[0])).normalize();
+    let twist = (n_end.cross(normals[0]).dot(tang[0])).atan2(n_end.dot(normals[0]));
+    let mut pos = Vec::with_capacity(n_along * n_around);
+    for i in 0..n_along {
+        let ang = twist * i as f32 / n_along as f32;
+        let t = tang[i];
+        let n0 = normals[i];
+        let b0 = t.cross(n0);
+        let (n1, b1) = (
+            n0 * ang.cos() + b0 * ang.sin(),
+            b0 * ang.cos() - n0 * ang.sin(),
+        );
+        for j in 0..n_around {
+            let a = TAU * j as f32 / n_around as f32;
+            pos.push(c[i] + radius * (n1 * a.cos() + b1 * a.sin()));
+        }
+    }
+    let mut tris = Vec::with_capacity(2 * n_along * n_around);
+    for i in 0..n_along {
+        let i1 = (i + 1) % n_along;
+        for j in 0..n_around {
+            let j1 = (j + 1) % n_around;
+            let v = |a: usize, b: usize| (a * n_around + b) as u32;
+            tris.push([v(i, j), v(i1, j), v(i1, j1)]);
+            tris.push([v(i, j), v(i1, j1), v(i, j1)]);
+        }
+    }
+    orient_outward(TriMesh {
+        positions: pos,
+        triangles: tris,
+    })
+}
+
+/// Marching tetrahedra of the bear's union of ellipsoids on an `n^3` grid.
+fn bear_mesh(n: usize) -> TriMesh {
+    let ell = bear_ellipsoids();
+    let f = |p: Vec3| ell.iter().map(|e| e.sdf(p)).fold(f32::INFINITY, f32::min);
+    let mut m = marching_tetrahedra(&f, Vec3::splat(-1.02), Vec3::splat(1.02), n);
+    // Project every vertex onto the ellipsoid it belongs to, unless that would move it
+    // inside another ellipsoid (crease vertices keep their interpolated position).
+    for p in m.positions.iter_mut() {
+        let (k, _) = ell
+            .iter()
+            .enumerate()
+            .map(|(k, e)| (k, e.sdf(*p)))
+            .fold((0, f32::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
+        let q = ell[k].project(*p);
+        let ok = ell
+            .iter()
+            .enumerate()
+            .all(|(j, e)| j == k || e.implicit(q) > -1e-4);
+        if ok && (q - *p).length() < 0.05 {
+            *p = q;
+        }
+    }
+    m
+}
+
+/// Marching tetrahedra (Kuhn decomposition, 6 tetrahedra per cube along the 0-7 diagonal,
+/// consistent across cubes, so the result is watertight) of `f < 0` over the box
+/// `[lo, hi]` with `n` cells per side. Triangles face the positive side.
+pub fn marching_tetrahedra(
+    f: &(dyn Fn(Vec3) -> f32 + Sync),
+    lo: Vec3,
+    hi: Vec3,
+    n: usize,
+) -> TriMesh {
+    use rayon::prelude::*;
+    let np = n + 1;
+    let h = (hi - lo) / n as f32;
+    let grid_pos = |i: usize, j: usize, k: usize| lo + Vec3::new(i as f32, j as f32, k as f32) * h;
+    let vals: Vec<f32> = (0..np * np * np)
+        .into_par_iter()
+        .map(|idx| {
+            let v = f(grid_pos(idx % np, (idx / np) % np, idx / (np * np)));
+            if v == 0.0 { 1e-9 } else { v }
+        })
+        .collect();
+    let gid = |i: usize, j: usize, k: usize| i + np * (j + np * k);
+    const TETS: [[usize; 4]; 6] = [
+        [0, 1, 3, 7],
+        [0, 1, 5, 7],
+        [0, 2, 3, 7],
+        [0, 2, 6, 7],
+        [0, 4, 5, 7],
+        [0, 4, 6, 7],
+    ];
+    let mut positions: Vec<Vec3> = Vec::new();
+    let mut triangles: Vec<[u32; 3]> = Vec::new();
+    let mut edge_vertex: HashMap<(usize, usize), u32> = HashMap::new();
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let corner = |b: usize| gid(i + (b & 1), j + ((b >> 1) & 1), k + ((b >> 2) & 1));
+                let cs: [usize; 8] = std::array::from_fn(corner);
+                let inside_count = cs.iter().filter(|&&g| vals[g] < 0.0).count();
+                if inside_count == 0 || inside_count == 8 {
+                    continue;
+                }
+                for tet in TETS {
+                    let g: [usize; 4] = tet.map(|b| cs[b]);
+                    let ins: Vec<usize> = (0..4).filter(|&a| vals[g[a]] < 0.0).collect();
+                    let outs: Vec<usize> = (0..4).filter(|&a| vals[g[a]] >= 0.0).collect();
+                    if ins.is_empty() || outs.is_empty() {
+                        continue;
+                    }
+                    let pos_of = |gi: usize| grid_pos(gi % np, (gi / np) % np, gi / (np * np));
+                    let mut vert = |a: usize, b: usize| -> u32 {
+                        let (ga, gb) = (g[a], g[b]);
+                        let key = (ga.min(gb), ga.max(gb));
+                        *edge_vertex.entry(key).or_insert_with(|| {
+                            let (va, vb) = (vals[ga], vals[gb]);
+                            let t = va / (va - vb);
+                            positions.push(pos_of(ga).lerp(pos_of(gb), t));
+                            positions.len() as u32 - 1
+                        })
+                    };
+                    let mut tri_list: Vec<[u32; 3]> = Vec::new();
+                    match (ins.len(), outs.len()) {
+                        (1, 3) => tri_list.push([
+                            vert(ins[0], outs[0]),
+                            vert(ins[0], outs[1]),
+                            vert(ins[0], outs[2]),
+                        ]),
+                        (3, 1) => tri_list.push([
+                            vert(outs[0], ins[0]),
+                            vert(outs[0], ins[1]),
+                            vert(outs[0], ins[2]),
+                        ]),
+                        _ => {
+                            let a = vert(ins[0], outs[0]);
+                            let b = vert(ins[0], outs[1]);
+                            let c = vert(ins[1], outs[1]);
+                            let d = vert(ins[1], outs[0]);
+                            tri_list.push([a, b, c]);
+                            tri_list.push([a, c, d]);
+                        }
+                    }
+                    // Orient: the normal points from the inside corners to the outside ones.
+                    let cin = ins.iter().map(|&a| pos_of(g[a])).sum::<Vec3>() / ins.len() as f32;
+                    let cout = outs.iter().map(|&a| pos_of(g[a])).sum::<Vec3>() / outs.len() as f32;
+                    for mut t in tri_list {
+                        let [p0, p1, p2] = t.map(|v| positions[v as usize]);
+                        let nrm = (p1 - p0).cross(p2 - p0);
+                        if nrm.dot(cout - cin) < 0.0 {
+                            t.swap(1, 2);
+                        }
+                        if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
+                            triangles.push(t);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
