@@ -15,4 +15,13 @@ fi
 
 # Everything runs in release: Burn and the kernels are too slow unoptimised, and the same
 # artefacts then serve `cargo bench` and `cargo run --release`.
-cargo test --workspace --release --locked "$@"
+log=$(mktemp)
+trap 'rm -f "$log"' EXIT
+set +e
+cargo test --workspace --release --locked "$@" 2>&1 | tee "$log"
+status=${PIPESTATUS[0]}
+set -e
+# One closing line over every test binary and doc-test run (cargo prints one per binary).
+awk '/^test result:/ { p += $4; f += $6; i += $8 }
+     END { printf "%d passed, %d failed, %d skipped\n", p, f, i }' "$log"
+exit "$status"

@@ -93,6 +93,18 @@ fn col_mask(x0: u32, x1: u32) -> u32 {
     ((1u64 << x1) as u32).wrapping_sub(1) & !((1u32 << x0) - 1)
 }
 
+/// The part of a splat's rectangle inside the tile `[ox, ex) x [oy, ey)`: its rows `[y0, y1)`,
+/// its columns as a tile-local bit mask, and the `dx` of the tile's column 0 (column `lx` adds
+/// `lx`).
+#[inline(always)]
+fn clip_to_tile<F: Real>(s: &Splat<F>, ox: u32, oy: u32, ex: u32, ey: u32) -> (u32, u32, u32, F) {
+    let x0 = s.rect[0].max(ox);
+    let x1 = s.rect[2].min(ex);
+    let cols = col_mask(x0 - ox, x1 - ox);
+    let dx0 = F::c(f64::from(ox) + 0.5) - s.xy[0];
+    (s.rect[1].max(oy), s.rect[3].min(ey), cols, dx0)
+}
+
 #[inline(always)]
 fn tile_bounds(t: usize, ctx: &RasterCtx<'_, impl Real>) -> (u32, u32, u32, u32) {
     let ox = (t as u32 % ctx.tiles_x) * TILE_SIZE;
@@ -153,13 +165,7 @@ fn rasterize_n<F: Real, const CH: usize>(
                 if n_alive == 0 {
                     break;
                 }
-                let x0 = s.rect[0].max(ox);
-                let x1 = s.rect[2].min(ex);
-                let y0 = s.rect[1].max(oy);
-                let y1 = s.rect[3].min(ey);
-                let cols = col_mask(x0 - ox, x1 - ox);
-                // dx of the tile's column 0; column lx adds lx.
-                let dx0 = F::c(f64::from(ox) + 0.5) - s.xy[0];
+                let (y0, y1, cols, dx0) = clip_to_tile(s, ox, oy, ex, ey);
                 for y in y0..y1 {
                     let ly = (y - oy) as usize;
                     let mut bits = alive[ly] & cols;
@@ -323,12 +329,7 @@ fn rasterize_backward_n<F: Real, const CH: usize>(args: BackwardArgs<'_, '_, F>)
             }
             let s = &tile_splats[k];
             let feat = &tile_feats[k * c..(k + 1) * c];
-            let x0 = s.rect[0].max(ox);
-            let x1 = s.rect[2].min(ex);
-            let y0 = s.rect[1].max(oy);
-            let y1 = s.rect[3].min(ey);
-            let cols = col_mask(x0 - ox, x1 - ox);
-            let dx0 = F::c(f64::from(ox) + 0.5) - s.xy[0];
+            let (y0, y1, cols, dx0) = clip_to_tile(s, ox, oy, ex, ey);
             let [ca, cb, cc] = s.conic;
             let row = &mut out[k * slot..(k + 1) * slot];
             let (mut du, mut dv, mut da, mut db, mut dc, mut dop) = (
