@@ -23,8 +23,8 @@ use serde::Deserialize;
 
 use crate::camera::{Camera, check_rigid, orthonormalise};
 use crate::error::{DataError, Result};
-use crate::image_io::{read_image, read_mask};
-use crate::scene::{LoadOptions, Normalisation, Scene, View, make_view};
+use crate::image_io::read_image;
+use crate::scene::{LoadOptions, Normalisation, Scene, View, make_view, separate_mask};
 
 #[derive(Deserialize, Default, Clone, Copy)]
 struct Intrinsics {
@@ -216,17 +216,7 @@ pub fn load_split(root: &Path, split: &str, opts: &LoadOptions) -> Result<Vec<Vi
             let camera = Camera::from_opengl_camera_to_world(
                 *c2w, fx as f32, fy as f32, cx as f32, cy as f32, want_w, want_h,
             );
-            let mask = if image.alpha.is_none() {
-                match find_mask(root, &f.file_path, img_path) {
-                    Some(mp) => {
-                        let (mw, mh, m) = read_mask(&mp)?;
-                        Some((mp, mw, mh, m))
-                    }
-                    None => None,
-                }
-            } else {
-                None
-            };
+            let mask = separate_mask(&image, || find_mask(root, &f.file_path, img_path))?;
             make_view(
                 f.file_path.clone(),
                 img_path.clone(),

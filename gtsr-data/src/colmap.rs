@@ -28,8 +28,8 @@ use rayon::prelude::*;
 
 use crate::camera::Camera;
 use crate::error::{DataError, Result};
-use crate::image_io::{read_image, read_mask};
-use crate::scene::{LoadOptions, Normalisation, Scene, View, make_view};
+use crate::image_io::read_image;
+use crate::scene::{LoadOptions, Normalisation, Scene, View, make_view, separate_mask};
 
 /// A COLMAP camera (intrinsics).
 #[derive(Clone, Debug, PartialEq)]
@@ -135,6 +135,10 @@ struct Reader<'a> {
 }
 
 impl<'a> Reader<'a> {
+    fn new(data: &'a [u8], path: &'a Path) -> Self {
+        Reader { data, pos: 0, path }
+    }
+
     fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8]> {
         if self.pos + n > self.data.len() {
             return Err(DataError::malformed(
@@ -235,11 +239,7 @@ pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>> {
     let mut out = Vec::new();
     if is_bin(path) {
         let data = read_bytes(path)?;
-        let mut r = Reader {
-            data: &data,
-            pos: 0,
-            path,
-        };
+        let mut r = Reader::new(&data, path);
         let n = r.count("number of cameras", 24)?;
         for _ in 0..n {
             let id = r.u32("camera id")?;
@@ -317,11 +317,7 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>> {
     let mut out = Vec::new();
     if is_bin(path) {
         let data = read_bytes(path)?;
-        let mut r = Reader {
-            data: &data,
-            pos: 0,
-            path,
-        };
+        let mut r = Reader::new(&data, path);
         let n = r.count("number of images", 64)?;
         for _ in 0..n {
             let id = r.u32("image id")?;
@@ -394,11 +390,7 @@ pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint>> {
     let mut out = Vec::new();
     if is_bin(path) {
         let data = read_bytes(path)?;
-        let mut r = Reader {
-            data: &data,
-            pos: 0,
-            path,
-        };
+        let mut r = Reader::new(&data, path);
         let n = r.count("number of points", 51)?;
         for _ in 0..n {
             let id = r.u64("point id")?;
@@ -587,17 +579,7 @@ pub fn load_colmap(root: impl AsRef<Path>, opts: &LoadOptions) -> Result<Scene> 
                     want_h: camera.height,
                 });
             }
-            let mask = if image.alpha.is_none() {
-                match find_colmap_mask(&root, &img.name) {
-                    Some(mp) => {
-                        let (mw, mh, m) = read_mask(&mp)?;
-                        Some((mp, mw, mh, m))
-                    }
-                    None => None,
-                }
-            } else {
-                None
-            };
+            let mask = separate_mask(&image, || find_colmap_mask(&root, &img.name))?;
             make_view(
                 img.name.clone(),
                 file.clone(),

@@ -7,7 +7,7 @@ use rayon::prelude::*;
 
 use crate::camera::Camera;
 use crate::error::{DataError, Result};
-use crate::image_io::{Encoding, Image, downscale_image};
+use crate::image_io::{Encoding, Image, downscale_image, read_mask};
 use crate::synthetic::rng::Rng;
 
 /// Background to composite RGBA images onto (`out = rgb * mask + bg * (1 - mask)`, in the
@@ -224,6 +224,27 @@ impl Scene {
     }
 }
 
+/// A mask read from its own file: path, width, height, values in `[0, 1]`.
+pub(crate) type MaskFile = (PathBuf, u32, u32, Vec<f32>);
+
+/// A mask file for an image without alpha: `find` locates it (`None`: no mask), and it is read
+/// here. Images with alpha use that instead and get `None`.
+pub(crate) fn separate_mask(
+    image: &Image,
+    find: impl FnOnce() -> Option<PathBuf>,
+) -> Result<Option<MaskFile>> {
+    if image.alpha.is_some() {
+        return Ok(None);
+    }
+    match find() {
+        Some(path) => {
+            let (w, h, m) = read_mask(&path)?;
+            Ok(Some((path, w, h, m)))
+        }
+        None => Ok(None),
+    }
+}
+
 /// Turns a decoded image (+ optional separate mask) into a [`View`]: checks sizes,
 /// downscales, composites.
 #[allow(clippy::too_many_arguments)]
@@ -232,7 +253,7 @@ pub(crate) fn make_view(
     path: PathBuf,
     camera: Camera,
     mut image: Image,
-    mask: Option<(PathBuf, u32, u32, Vec<f32>)>,
+    mask: Option<MaskFile>,
     opts: &LoadOptions,
     bg_key: (u64, usize),
 ) -> Result<View> {

@@ -4,9 +4,7 @@ use core::fmt::Debug;
 
 /// `f32` or `f64`: the CPU kernels are generic over it so that the same code serves training
 /// (f32) and the f64 reference used by the finite-difference tests.
-pub trait Real:
-    num_traits::Float + num_traits::FloatConst + Send + Sync + Debug + Default + 'static
-{
+pub trait Real: num_traits::Float + Send + Sync + Debug + Default + 'static {
     /// Converts from `f64` (rounding for `f32`).
     fn c(v: f64) -> Self;
     /// Widens to `f64`.

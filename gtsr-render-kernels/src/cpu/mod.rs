@@ -46,15 +46,6 @@ impl<F: Real> HostGaussians<'_, F> {
         self.opacities.is_empty()
     }
 
-    /// Feature channels per Gaussian.
-    pub fn channels(&self) -> usize {
-        if self.is_empty() {
-            0
-        } else {
-            self.features.len() / self.len()
-        }
-    }
-
     fn get(&self, i: usize) -> GaussIn<F> {
         let m = &self.means[3 * i..3 * i + 3];
         let q = &self.quats[4 * i..4 * i + 4];
