@@ -1,5 +1,41 @@
-//! The GTSR model: two Gaussian sets, C_SH and C_PBR renders, losses, densification and the
-//! training step.
+//! The GTSR model (translucent-object surface reconstruction with Gaussian splatting), generic
+//! over the Burn device: two Gaussian sets, the Fresnel-weighted C_SH blend, PGSR geometry
+//! (normals, plane distances, unbiased depth), deferred C_PBR under a co-located light, the
+//! losses, densification, the two-stage training step, checkpoints and PLY export.
 //!
-//! Empty for now: this crate is filled by the gtsr-model issue, on top of
-//! `gtsr-render-kernels`. Nothing here pretends to work.
+//! Modules follow the paper's vocabulary:
+//! - [`gaussians`]: the sets as `[N, width]` Burn tensors, activations, host copies;
+//! - [`sh`], [`geometry`], [`pbr`] (with the Schlick Fresnel term): per-Gaussian and per-pixel
+//!   formulas as Burn ops, differentiated by Burn's autodiff;
+//! - [`model`]: the render passes (C_SH, geometry/material, scattering) through
+//!   `gtsr-render-kernels`, and C_PBR;
+//! - [`losses`]: photometric (L1 + SSIM), single- and multi-view geometry, interior
+//!   containment, smoothness, flattening, mask;
+//! - [`config`]: components (what to leave out), presets, `auto`, weights and schedule;
+//! - [`trainer`], [`optim`], [`densify`]: the step, Adam with resizable state, density control;
+//! - [`checkpoint`], [`export`]: saving and resuming, 3DGS-compatible PLY.
+
+#![warn(missing_docs)]
+// NdArray is deprecated upstream in favour of burn-flex; the design card keeps it for CI.
+#![allow(deprecated)]
+
+pub mod checkpoint;
+pub mod config;
+pub mod densify;
+pub mod error;
+pub mod export;
+pub mod gaussians;
+pub mod geometry;
+pub mod losses;
+pub mod model;
+pub mod optim;
+pub mod pbr;
+pub mod sh;
+pub mod trainer;
+pub mod views;
+
+pub use config::{Components, Preset, TrainConfig};
+pub use error::ModelError;
+pub use model::{Model, RenderOptions, Renders};
+pub use trainer::{StepReport, Trainer};
+pub use views::ViewTensors;

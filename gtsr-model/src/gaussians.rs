@@ -1,0 +1,430 @@
+//! The two Gaussian sets as Burn tensors, their activations, and a host-side copy used for
+//! densification, checkpoints and export.
+//!
+//! Every parameter is a `[N, width]` tensor so that densification, pruning and the optimiser
+//! state treat them alike. Activations: `scale = exp(log_scale)`, `opacity = logistic(logit)`,
+//! `base = logistic(logit)`, `roughness = logistic(logit)`; quaternions `(w, x, y, z)` are
+//! normalised where they are used.
+
+use burn::tensor::{Device, Tensor, TensorData};
+use serde::{Deserialize, Serialize};
+
+/// Which set.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum SetKind {
+    /// Flat surface Gaussians: geometry, surface colour, PBR material.
+    Surface,
+    /// Interior Gaussians: scattering colour.
+    Interior,
+}
+
+impl SetKind {
+    /// Lower-case name.
+    pub fn name(&self) -> &'static str {
+        match self {
+            SetKind::Surface => "surface",
+            SetKind::Interior => "interior",
+        }
+    }
+}
+
+/// One parameter tensor of a set.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum ParamKind {
+    /// `[N, 3]` world-space means.
+    Means,
+    /// `[N, 4]` quaternions `(w, x, y, z)`.
+    Rotations,
+    /// `[N, 3]` log standard deviations.
+    LogScales,
+    /// `[N, 1]` opacity logits.
+    Opacity,
+    /// `[N, 3]` SH DC coefficients.
+    ShDc,
+    /// `[N, (K - 1) * 3]` higher SH coefficients, coefficient-major.
+    ShRest,
+    /// `[N, 3]` base-colour logits (surface set with PBR).
+    BaseColour,
+    /// `[N, 1]` roughness logits (surface set with PBR).
+    Roughness,
+}
+
+impl ParamKind {
+    /// Every parameter kind.
+    pub const ALL: [ParamKind; 8] = [
+        ParamKind::Means,
+        ParamKind::Rotations,
+        ParamKind::LogScales,
+        ParamKind::Opacity,
+        ParamKind::ShDc,
+        ParamKind::ShRest,
+        ParamKind::BaseColour,
+        ParamKind::Roughness,
+    ];
+
+    /// Name used in checkpoints and reports.
+    pub fn name(&self) -> &'static str {
+        match self {
+            ParamKind::Means => "means",
+            ParamKind::Rotations => "rotations",
+            ParamKind::LogScales => "log_scales",
+            ParamKind::Opacity => "opacity_logits",
+            ParamKind::ShDc => "sh_dc",
+            ParamKind::ShRest => "sh_rest",
+            ParamKind::BaseColour => "base_colour_logits",
+            ParamKind::Roughness => "roughness_logits",
+        }
+    }
+}
+
+/// A set of Gaussians: named `[N, width]` parameter tensors (autodiff leaves while training).
+#[derive(Clone, Debug)]
+pub struct GaussianSet {
+    /// Surface or interior.
+    pub kind: SetKind,
+    /// The parameters, in a fixed order.
+    pub params: Vec<(ParamKind, Tensor<2>)>,
+}
+
+/// Numerically careful logistic (Burn's `sigmoid` rounds through f32 on NdArray f64).
+pub fn logistic<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+    (x.neg().exp() + 1.0).recip()
+}
+
+/// Inverse of the logistic.
+pub fn logit(p: f64) -> f64 {
+    let p = p.clamp(1e-6, 1.0 - 1e-6);
+    (p / (1.0 - p)).ln()
+}
+
+impl GaussianSet {
+    /// Number of Gaussians.
+    pub fn len(&self) -> usize {
+        self.params[0].1.dims()[0]
+    }
+
+    /// Whether the set is empty.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The parameter tensor of `kind`, if the set has it.
+    pub fn get(&self, kind: ParamKind) -> Option<&Tensor<2>> {
+        self.params.iter().find(|(k, _)| *k == kind).map(|(_, t)| t)
+    }
+
+    /// The parameter tensor of `kind`; panics if absent (a programming error: every set has
+    /// means, rotations, scales, opacities and SH DC).
+    pub fn req(&self, kind: ParamKind) -> &Tensor<2> {
+        self.get(kind)
+            .unwrap_or_else(|| panic!("{} set has no {}", self.kind.name(), kind.name()))
+    }
+
+    /// `[N, 3]` scales.
+    pub fn scales(&self) -> Tensor<2> {
+        self.req(ParamKind::LogScales).clone().exp()
+    }
+
+    /// `[N]` opacities.
+    pub fn opacities(&self) -> Tensor<1> {
+        let n = self.len();
+        logistic(self.req(ParamKind::Opacity).clone()).reshape([n])
+    }
+
+    /// Marks every parameter as requiring gradient (autodiff leaves).
+    pub fn require_grad(mut self) -> Self {
+        for (_, t) in self.params.iter_mut() {
+            *t = t.clone().detach().require_grad();
+        }
+        self
+    }
+
+    /// Copies the set to the host.
+    pub fn to_host(&self) -> HostSet {
+        HostSet {
+            kind: self.kind,
+            n: self.len(),
+            columns: self
+                .params
+                .iter()
+                .map(|(k, t)| {
+                    let w = t.dims()[1];
+                    let v: Vec<f32> = t
+                        .clone()
+                        .detach()
+                        .into_data()
+                        .convert::<f32>()
+                        .into_vec()
+                        .expect("f32 data");
+                    (*k, w, v)
+                })
+                .collect(),
+        }
+    }
+}
+
+/// A host copy of a set: per parameter `(kind, width, row-major values)`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HostSet {
+    /// Surface or interior.
+    pub kind: SetKind,
+    /// Number of Gaussians.
+    pub n: usize,
+    /// The parameters.
+    pub columns: Vec<(ParamKind, usize, Vec<f32>)>,
+}
+
+impl HostSet {
+    /// The values of `kind` and its width.
+    pub fn column(&self, kind: ParamKind) -> Option<(&[f32], usize)> {
+        self.columns
+            .iter()
+            .find(|(k, _, _)| *k == kind)
+            .map(|(_, w, v)| (v.as_slice(), *w))
+    }
+
+    /// Mutable values of `kind`.
+    pub fn column_mut(&mut self, kind: ParamKind) -> Option<&mut Vec<f32>> {
+        self.columns
+            .iter_mut()
+            .find(|(k, _, _)| *k == kind)
+            .map(|(_, _, v)| v)
+    }
+
+    /// Uploads to `device` (leaves requiring gradient when `device` is an autodiff device).
+    pub fn to_device(&self, device: &Device) -> GaussianSet {
+        GaussianSet {
+            kind: self.kind,
+            params: self
+                .columns
+                .iter()
+                .map(|(k, w, v)| {
+                    let t =
+                        Tensor::<2>::from_data(TensorData::new(v.clone(), [self.n, *w]), device);
+                    (
+                        *k,
+                        if device.is_autodiff() {
+                            t.require_grad()
+                        } else {
+                            t
+                        },
+                    )
+                })
+                .collect(),
+        }
+    }
+
+    /// Keeps rows `keep` (in that order) and appends `extra` (a host set of the same layout).
+    pub fn reindex(&self, keep: &[usize], extra: Option<&HostSet>) -> HostSet {
+        let columns = self
+            .columns
+            .iter()
+            .map(|(k, w, v)| {
+                let mut out = Vec::with_capacity((keep.len() + extra.map_or(0, |e| e.n)) * w);
+                for &i in keep {
+                    out.extend_from_slice(&v[i * w..(i + 1) * w]);
+                }
+                if let Some(e) = extra {
+                    let (ev, ew) = e.column(*k).expect("same layout");
+                    assert_eq!(ew, *w);
+                    out.extend_from_slice(ev);
+                }
+                (*k, *w, out)
+            })
+            .collect();
+        HostSet {
+            kind: self.kind,
+            n: keep.len() + extra.map_or(0, |e| e.n),
+            columns,
+        }
+    }
+
+    /// An empty set with the same layout.
+    pub fn empty_like(&self) -> HostSet {
+        HostSet {
+            kind: self.kind,
+            n: 0,
+            columns: self
+                .columns
+                .iter()
+                .map(|(k, w, _)| (*k, *w, Vec::new()))
+                .collect(),
+        }
+    }
+
+    /// Appends one row given per-parameter slices (same order as `columns`).
+    pub fn push_row(&mut self, row: &[Vec<f32>]) {
+        for ((_, w, v), r) in self.columns.iter_mut().zip(row) {
+            assert_eq!(r.len(), *w);
+            v.extend_from_slice(r);
+        }
+        self.n += 1;
+    }
+
+    /// Row `i` of every parameter.
+    pub fn row(&self, i: usize) -> Vec<Vec<f32>> {
+        self.columns
+            .iter()
+            .map(|(_, w, v)| v[i * w..(i + 1) * w].to_vec())
+            .collect()
+    }
+
+    /// Whether every value is finite.
+    pub fn all_finite(&self) -> bool {
+        self.columns
+            .iter()
+            .all(|(_, _, v)| v.iter().all(|x| x.is_finite()))
+    }
+}
+
+/// Layout of a new set: which parameters and their widths.
+pub fn layout(kind: SetKind, sh_coeffs: usize, material: bool) -> Vec<(ParamKind, usize)> {
+    let mut l = vec![
+        (ParamKind::Means, 3),
+        (ParamKind::Rotations, 4),
+        (ParamKind::LogScales, 3),
+        (ParamKind::Opacity, 1),
+        (ParamKind::ShDc, 3),
+    ];
+    if sh_coeffs > 1 {
+        l.push((ParamKind::ShRest, (sh_coeffs - 1) * 3));
+    }
+    if kind == SetKind::Surface && material {
+        l.push((ParamKind::BaseColour, 3));
+        l.push((ParamKind::Roughness, 1));
+    }
+    l
+}
+
+/// Builds a host set from positions with isotropic scales from the mean distance to the
+/// three nearest neighbours (3DGS), random rotations, the given opacity and grey colour
+/// (SH DC 0 is grey 0.5 after the +0.5 offset), base colour 0.5 and roughness 0.5.
+pub fn host_set_from_points(
+    kind: SetKind,
+    points: &[[f32; 3]],
+    sh_coeffs: usize,
+    material: bool,
+    opacity: f64,
+    rng: &mut impl rand::RngExt,
+) -> HostSet {
+    let lay = layout(kind, sh_coeffs, material);
+    let scales = knn_scales(points);
+    let mut set = HostSet {
+        kind,
+        n: 0,
+        columns: lay.iter().map(|(k, w)| (*k, *w, Vec::new())).collect(),
+    };
+    let op = logit(opacity) as f32;
+    for (p, s) in points.iter().zip(&scales) {
+        let q = random_quat(rng);
+        let ls = s.max(1e-7).ln();
+        let row: Vec<Vec<f32>> = lay
+            .iter()
+            .map(|(k, w)| match k {
+                ParamKind::Means => p.to_vec(),
+                ParamKind::Rotations => q.to_vec(),
+                ParamKind::LogScales => vec![ls; 3],
+                ParamKind::Opacity => vec![op],
+                ParamKind::ShDc
+                | ParamKind::ShRest
+                | ParamKind::BaseColour
+                | ParamKind::Roughness => {
+                    vec![0.0; *w]
+                }
+            })
+            .collect();
+        set.push_row(&row);
+    }
+    set
+}
+
+/// A uniformly random unit quaternion.
+pub fn random_quat(rng: &mut impl rand::RngExt) -> [f32; 4] {
+    loop {
+        let q: [f32; 4] = std::array::from_fn(|_| rng.random_range(-1.0f32..1.0));
+        let n2: f32 = q.iter().map(|v| v * v).sum();
+        if n2 > 1e-4 && n2 <= 1.0 {
+            let n = n2.sqrt();
+            return q.map(|v| v / n);
+        }
+    }
+}
+
+/// Mean distance to the three nearest neighbours (brute force within a uniform grid).
+pub fn knn_scales(points: &[[f32; 3]]) -> Vec<f32> {
+    if points.len() < 2 {
+        return vec![0.01; points.len()];
+    }
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for p in points {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let extent = (0..3)
+        .map(|k| hi[k] - lo[k])
+        .fold(0.0f32, f32::max)
+        .max(1e-6);
+    let cells = ((points.len() as f32 / 2.0).cbrt().ceil() as usize).clamp(1, 128);
+    let cell = extent / cells as f32 + 1e-9;
+    let key = |p: &[f32; 3]| -> [usize; 3] {
+        std::array::from_fn(|k| (((p[k] - lo[k]) / cell) as usize).min(cells - 1))
+    };
+    let mut grid: std::collections::HashMap<[usize; 3], Vec<usize>> = Default::default();
+    for (i, p) in points.iter().enumerate() {
+        grid.entry(key(p)).or_default().push(i);
+    }
+    points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let c = key(p);
+            let mut best = [f32::INFINITY; 3];
+            let mut ring = 1usize;
+            loop {
+                for dz in -(ring as i64)..=ring as i64 {
+                    for dy in -(ring as i64)..=ring as i64 {
+                        for dx in -(ring as i64)..=ring as i64 {
+                            let q = [c[0] as i64 + dx, c[1] as i64 + dy, c[2] as i64 + dz];
+                            if q.iter().any(|&v| v < 0 || v >= cells as i64) {
+                                continue;
+                            }
+                            if let Some(list) =
+                                grid.get(&[q[0] as usize, q[1] as usize, q[2] as usize])
+                            {
+                                for &j in list {
+                                    if j == i {
+                                        continue;
+                                    }
+                                    let d2: f32 =
+                                        (0..3).map(|k| (points[j][k] - p[k]).powi(2)).sum();
+                                    if d2 < best[2] {
+                                        best[2] = d2;
+                                        best.sort_by(|a, b| a.total_cmp(b));
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+                // Points beyond `ring` cells are at least (ring) * cell away.
+                let reach = (ring as f32 * cell).powi(2);
+                if (best[2] <= reach) || ring >= cells {
+                    break;
+                }
+                ring += 1;
+            }
+            let found: Vec<f32> = best
+                .iter()
+                .filter(|d| d.is_finite())
+                .map(|d| d.sqrt())
+                .collect();
+            if found.is_empty() {
+                0.01
+            } else {
+                found.iter().sum::<f32>() / found.len() as f32
+            }
+        })
+        .collect()
+}

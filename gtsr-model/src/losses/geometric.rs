@@ -1,0 +1,232 @@
+//! PGSR's geometric terms for the surface set: the single-view depth-normal consistency and
+//! the multi-view forward-backward reprojection error with a neighbour view.
+
+use burn::tensor::{Bool, Int, Tensor, TensorData};
+
+use gtsr_render_kernels::Camera;
+
+use crate::geometry::{camera_tensors, normalize_rows, normals_from_depth};
+
+/// Single-view term: `sum_p w(p) |N_d(p) - N(p)|_1 / #valid`, with `N_d` the normal of the
+/// depth map, `N` the rendered normal (normalised) and `w` the edge weight of the ground truth.
+pub fn single_view(
+    depth: &Tensor<2>,
+    normal: &Tensor<3>,
+    rays: &Tensor<3>,
+    valid: &Tensor<2, Bool>,
+    edge_weight: &Tensor<2>,
+) -> Tensor<1> {
+    let [h, w] = depth.dims();
+    let (nd, inner) = normals_from_depth(depth, rays, valid);
+    let len = normal
+        .clone()
+        .powf_scalar(2.0)
+        .sum_dim(2)
+        .clamp_min(1e-12)
+        .sqrt();
+    let n = normal.clone() / len;
+    let diff = (nd - n).abs().sum_dim(2).reshape([h, w]);
+    let weight = inner.clone() * edge_weight.clone();
+    let count = inner.sum().clamp_min(1.0);
+    (diff * weight).sum() / count
+}
+
+/// What the multi-view term measured.
+#[derive(Clone, Debug)]
+pub struct MultiViewTerm {
+    /// The loss `mean_valid(exp(-phi) phi)`, weights detached.
+    pub loss: Tensor<1>,
+    /// Number of pixels that entered it.
+    pub valid: usize,
+    /// Their mean reprojection error in pixels.
+    pub mean_error_px: f64,
+}
+
+fn pixel_grid(w: usize, h: usize, device: &burn::tensor::Device) -> (Tensor<1>, Tensor<1>) {
+    let mut u = Vec::with_capacity(w * h);
+    let mut v = Vec::with_capacity(w * h);
+    for j in 0..h {
+        for i in 0..w {
+            u.push(i as f32 + 0.5);
+            v.push(j as f32 + 0.5);
+        }
+    }
+    (
+        Tensor::from_data(TensorData::new(u, [w * h]), device),
+        Tensor::from_data(TensorData::new(v, [w * h]), device),
+    )
+}
+
+fn project(x: &Tensor<2>, cam: &Camera, near: f64) -> (Tensor<1>, Tensor<1>, Tensor<1>) {
+    let m = x.dims()[0];
+    let z = x.clone().slice([0..m, 2..3]).reshape([m]);
+    let zc = z.clone().clamp_min(near);
+    let u = x.clone().slice([0..m, 0..1]).reshape([m]) / zc.clone() * cam.fx + cam.cx;
+    let v = x.clone().slice([0..m, 1..2]).reshape([m]) / zc * cam.fy + cam.cy;
+    (u, v, z)
+}
+
+/// Bilinear sample of `map` `[H, W]` at continuous pixel positions (centres at `i + 0.5`),
+/// differentiable in the map values and the positions; also returns the four corner indices.
+fn bilinear(
+    map: &Tensor<2>,
+    u: &Tensor<1>,
+    v: &Tensor<1>,
+) -> (Tensor<1>, [Tensor<1, Int>; 4], [Tensor<1>; 4]) {
+    let [h, w] = map.dims();
+    let x = u.clone() - 0.5;
+    let y = v.clone() - 0.5;
+    let x0 = x.clone().detach().floor().clamp(0.0, (w - 2) as f64);
+    let y0 = y.clone().detach().floor().clamp(0.0, (h - 2) as f64);
+    let fx = (x - x0.clone()).clamp(0.0, 1.0);
+    let fy = (y - y0.clone()).clamp(0.0, 1.0);
+    let xi = x0.int();
+    let yi = y0.int();
+    let i00 = yi.clone() * (w as i64) + xi.clone();
+    let i10 = i00.clone() + 1;
+    let i01 = i00.clone() + (w as i64);
+    let i11 = i01.clone() + 1;
+    let flat = map.clone().reshape([h * w]);
+    let g = |i: &Tensor<1, Int>| flat.clone().gather(0, i.clone());
+    let wts = [
+        (fx.clone().neg() + 1.0) * (fy.clone().neg() + 1.0),
+        fx.clone() * (fy.clone().neg() + 1.0),
+        (fx.clone().neg() + 1.0) * fy.clone(),
+        fx * fy,
+    ];
+    let val = g(&i00) * wts[0].clone()
+        + g(&i10) * wts[1].clone()
+        + g(&i01) * wts[2].clone()
+        + g(&i11) * wts[3].clone();
+    (val, [i00, i10, i01, i11], wts)
+}
+
+/// Multi-view geometric term between a reference view and a neighbour.
+///
+/// Each reference pixel's unbiased-depth point is carried into the neighbour, the neighbour's
+/// depth is sampled there (bilinear), and that point is carried back; `phi` is the distance in
+/// pixels to where it started. Pixels that leave the neighbour's image, fall behind its camera,
+/// land on its invalid pixels or have `phi >= max_error_px` are left out; the rest are weighted
+/// by `exp(-phi)` (detached), as PGSR does. Gradients reach both depth maps.
+#[allow(clippy::too_many_arguments)]
+pub fn multi_view(
+    depth_r: &Tensor<2>,
+    rays_r: &Tensor<3>,
+    valid_r: &Tensor<2, Bool>,
+    cam_r: &Camera,
+    depth_n: &Tensor<2>,
+    valid_n: &Tensor<2, Bool>,
+    cam_n: &Camera,
+    max_error_px: f64,
+) -> MultiViewTerm {
+    let [h, w] = depth_r.dims();
+    let m = h * w;
+    let device = depth_r.device();
+    let dtype = depth_r.dtype();
+    let (rr, tr) = camera_tensors(cam_r, &device);
+    let (rn, tn) = camera_tensors(cam_n, &device);
+    let (rr, tr, rn, tn) = (
+        rr.cast(dtype),
+        tr.cast(dtype),
+        rn.cast(dtype),
+        tn.cast(dtype),
+    );
+    let xr = rays_r.clone().reshape([m, 3]) * depth_r.clone().reshape([m, 1]);
+    let xw = (xr - tr.clone()).matmul(rr.clone());
+    let xn = xw.matmul(rn.clone().transpose()) + tn.clone();
+    let (un, vn, zn) = project(&xn, cam_n, cam_n.near);
+    let [hn, wn] = depth_n.dims();
+    let (dn, corners, _) = bilinear(depth_n, &un, &vn);
+    let vflat = valid_n.clone().float().cast(dtype).reshape([hn * wn]);
+    let corner_valid = corners
+        .iter()
+        .map(|i| vflat.clone().gather(0, i.clone()))
+        .reduce(|a, b| a * b)
+        .expect("four corners");
+    let ray_n = Tensor::cat(
+        vec![
+            ((un.clone() - cam_n.cx) / cam_n.fx).reshape([m, 1]),
+            ((vn.clone() - cam_n.cy) / cam_n.fy).reshape([m, 1]),
+            Tensor::ones([m, 1], (&device, dtype)),
+        ],
+        1,
+    );
+    let xn2 = ray_n * dn.reshape([m, 1]);
+    let xw2 = (xn2 - tn).matmul(rn);
+    let xr2 = xw2.matmul(rr.transpose()) + tr;
+    let (ur2, vr2, zr2) = project(&xr2, cam_r, cam_r.near);
+    let (u0, v0) = pixel_grid(w, h, &device);
+    let (u0, v0) = (u0.cast(dtype), v0.cast(dtype));
+    let phi = ((ur2 - u0).powf_scalar(2.0) + (vr2 - v0).powf_scalar(2.0) + 1e-12).sqrt();
+    let inside = un
+        .clone()
+        .detach()
+        .greater_equal_elem(0.5)
+        .bool_and(un.detach().lower_equal_elem(wn as f64 - 0.5))
+        .bool_and(vn.clone().detach().greater_equal_elem(0.5))
+        .bool_and(vn.detach().lower_equal_elem(hn as f64 - 0.5))
+        .bool_and(zn.detach().greater_elem(cam_n.near))
+        .bool_and(zr2.detach().greater_elem(cam_r.near));
+    let keep = inside
+        .bool_and(corner_valid.greater_elem(0.5))
+        .bool_and(valid_r.clone().reshape([m]))
+        .bool_and(phi.clone().detach().lower_elem(max_error_px));
+    let keepf = keep.float().cast(dtype);
+    let count = keepf.clone().sum().into_scalar::<f64>();
+    let weight = phi.clone().detach().neg().exp() * keepf.clone();
+    let mean_error_px = if count > 0.0 {
+        (phi.clone().detach() * keepf).sum().into_scalar::<f64>() / count
+    } else {
+        0.0
+    };
+    let loss = (weight * phi).sum() / count.max(1.0);
+    MultiViewTerm {
+        loss,
+        valid: count as usize,
+        mean_error_px,
+    }
+}
+
+/// Interior containment `L_in`: interior Gaussians whose camera depth is smaller than the
+/// surface depth at their projected pixel (they sit outside the surface) are pulled back by
+/// `D[p] - d_i`; averaged over the whole interior set. The surface depth is not moved by it.
+pub fn interior_containment(
+    means: &Tensor<2>,
+    cam: &Camera,
+    depth: &Tensor<2>,
+    valid: &Tensor<2, Bool>,
+) -> Tensor<1> {
+    let n = means.dims()[0];
+    let [h, w] = depth.dims();
+    let dtype = means.dtype();
+    let (r, t) = camera_tensors(cam, &means.device());
+    let pc = means.clone().matmul(r.cast(dtype).transpose()) + t.cast(dtype);
+    let (u, v, z) = project(&pc, cam, cam.near);
+    let on_screen = u
+        .clone()
+        .detach()
+        .greater_equal_elem(0.0)
+        .bool_and(u.clone().detach().lower_elem(w as f64))
+        .bool_and(v.clone().detach().greater_equal_elem(0.0))
+        .bool_and(v.clone().detach().lower_elem(h as f64))
+        .bool_and(z.clone().detach().greater_elem(cam.near));
+    let idx = crate::geometry::nearest_index(u.detach(), v.detach(), w, h);
+    let d_at = depth
+        .clone()
+        .detach()
+        .reshape([h * w])
+        .gather(0, idx.clone());
+    let ok = valid
+        .clone()
+        .float()
+        .cast(dtype)
+        .reshape([h * w])
+        .gather(0, idx)
+        * on_screen.float().cast(dtype);
+    ((d_at - z).clamp_min(0.0) * ok).sum() / (n.max(1) as f64)
+}
+
+/// Unit-length helper re-exported for callers that normalise rendered normals.
+pub fn unit(v: Tensor<2>) -> Tensor<2> {
+    normalize_rows(v)
+}

@@ -1,0 +1,9 @@
+//! The training objective, one term per module as the paper names them.
+
+pub mod geometric;
+pub mod photometric;
+pub mod regular;
+
+pub use geometric::{MultiViewTerm, interior_containment, multi_view, single_view};
+pub use photometric::{l1, photometric, ssim, ssim_map};
+pub use regular::{edge_aware_smoothness, flatten, mask_l1};

@@ -1,0 +1,414 @@
+//! The GTSR model and its render passes.
+//!
+//! One step renders, for a camera:
+//! 1. **C_SH**: surface and interior sets in one sorted blend; each surface Gaussian's opacity is
+//!    multiplied by the Schlick Fresnel term of its normal and view direction.
+//! 2. **Geometry**: the surface set alone, blending per Gaussian the camera-space normal, the
+//!    plane distance and (with PBR) base colour and roughness; the unbiased depth follows.
+//! 3. **Scattering**: the interior set alone, its SH colour (the scattering map of C_PBR).
+//!
+//! C_PBR is then shaded per pixel from these maps. When nothing but the surface set is blended
+//! with its plain opacity (stage 1, or no interior set), passes 1 and 2 blend the same splats
+//! with the same weights, so they are merged into one pass with more channels. A component that
+//! is off allocates nothing and renders nothing; [`Renders::passes`] counts raster passes.
+
+use burn::tensor::{Device, Tensor, TensorData};
+use gtsr_render_kernels::{AlphaCutoff, Camera, SplatConfig, SplatInputs, render};
+
+use crate::config::Components;
+use crate::error::ModelError;
+use crate::gaussians::{GaussianSet, ParamKind, logistic};
+use crate::geometry::{
+    dir_to_camera, facing_normals, quat_to_matrix, to_camera, unbiased_depth, view_dirs,
+};
+use crate::pbr::{self, GBuffer, ShadingParams};
+use crate::sh;
+
+/// The model: the surface set, the optional interior set and the light.
+#[derive(Clone, Debug)]
+pub struct Model {
+    /// The switches this model was built with.
+    pub components: Components,
+    /// Surface Gaussians.
+    pub surface: GaussianSet,
+    /// Interior Gaussians (added at stage 2 when the component is on).
+    pub interior: Option<GaussianSet>,
+    /// `[1, 1]` log intensity of the co-located point light (with PBR).
+    pub log_light: Option<Tensor<2>>,
+    /// SH degree in use now (grows to `components.sh_degree`).
+    pub sh_degree: u32,
+}
+
+/// What a render should produce.
+#[derive(Clone, Copy, Debug)]
+pub struct RenderOptions {
+    /// Stage 2: interior set, Fresnel, PBR (as switched on).
+    pub stage2: bool,
+    /// Produce the geometry maps (normal, plane distance, depth).
+    pub geometry: bool,
+    /// Attach screen-space offset leaves so `dL/d mean2d` can be read for densification.
+    pub track_offsets: bool,
+    /// Shading constants for C_PBR.
+    pub shading: ShadingParams,
+    /// Encode C_PBR with the sRGB curve.
+    pub pbr_srgb: bool,
+}
+
+/// Geometry and material maps of the surface set.
+#[derive(Clone, Debug)]
+pub struct GeometryMaps {
+    /// `[H, W, 3]` camera-space normal (blended, premultiplied by coverage).
+    pub normal: Tensor<3>,
+    /// `[H, W]` plane distance (blended).
+    pub plane: Tensor<2>,
+    /// `[H, W]` surface coverage (alpha of the surface blend, without Fresnel).
+    pub coverage: Tensor<2>,
+    /// `[H, W]` unbiased z-depth.
+    pub depth: Tensor<2>,
+    /// `[H, W, 3]` base colour (premultiplied), with PBR.
+    pub base: Option<Tensor<3>>,
+    /// `[H, W]` roughness (premultiplied), with PBR.
+    pub roughness: Option<Tensor<2>>,
+}
+
+/// Everything one render produced.
+#[derive(Clone, Debug)]
+pub struct Renders {
+    /// `[H, W, 3]` C_SH.
+    pub c_sh: Tensor<3>,
+    /// `[H, W]` alpha of the C_SH blend.
+    pub alpha_sh: Tensor<2>,
+    /// Geometry maps when asked for.
+    pub geometry: Option<GeometryMaps>,
+    /// `[H, W, 3]` scattering map (interior set), with PBR and the interior set.
+    pub scatter: Option<Tensor<3>>,
+    /// `[H, W, 3]` C_PBR as compared with the images (sRGB-encoded when configured).
+    pub c_pbr: Option<Tensor<3>>,
+    /// Raster passes run.
+    pub passes: usize,
+    /// `[Ns]` screen radii of the surface set in the C_SH pass (0: not visible).
+    pub surface_radii: Vec<f32>,
+    /// `[Ni]` screen radii of the interior set.
+    pub interior_radii: Vec<f32>,
+    /// Offset leaves of the surface set (when tracked).
+    pub surface_offsets: Option<Tensor<2>>,
+    /// Offset leaves of the interior set (when tracked).
+    pub interior_offsets: Option<Tensor<2>>,
+}
+
+/// Per-Gaussian quantities of one set for one camera.
+struct Prepared {
+    means: Tensor<2>,
+    quats: Tensor<2>,
+    scales: Tensor<2>,
+    opacities: Tensor<1>,
+    colours: Tensor<2>,
+    normals_w: Option<Tensor<2>>,
+    offsets: Option<Tensor<2>>,
+}
+
+fn splat(
+    p: &Prepared,
+    opacities: Tensor<1>,
+    features: Tensor<2>,
+    camera: &Camera,
+) -> Result<gtsr_render_kernels::RenderOutput, ModelError> {
+    let c = features.dims()[1];
+    let cfg = SplatConfig {
+        camera: camera.clone(),
+        background: vec![0.0; c],
+        cutoff: AlphaCutoff::Hard,
+    };
+    Ok(render(
+        SplatInputs {
+            means: p.means.clone(),
+            quats: p.quats.clone(),
+            scales: p.scales.clone(),
+            opacities,
+            features,
+            xy_offsets: p.offsets.clone(),
+        },
+        &cfg,
+    )?)
+}
+
+fn cat_prepared(a: &Prepared, b: &Prepared) -> Prepared {
+    let cat2 = |x: &Tensor<2>, y: &Tensor<2>| Tensor::cat(vec![x.clone(), y.clone()], 0);
+    Prepared {
+        means: cat2(&a.means, &b.means),
+        quats: cat2(&a.quats, &b.quats),
+        scales: cat2(&a.scales, &b.scales),
+        opacities: Tensor::cat(vec![a.opacities.clone(), b.opacities.clone()], 0),
+        colours: cat2(&a.colours, &b.colours),
+        normals_w: None,
+        offsets: match (&a.offsets, &b.offsets) {
+            (Some(x), Some(y)) => Some(cat2(x, y)),
+            _ => None,
+        },
+    }
+}
+
+fn host_column(t: Tensor<2>, col: usize) -> Vec<f32> {
+    let n = t.dims()[0];
+    t.slice([0..n, col..col + 1])
+        .into_data()
+        .convert::<f32>()
+        .into_vec()
+        .expect("f32 data")
+}
+
+impl Model {
+    /// Device of the parameters.
+    pub fn device(&self) -> Device {
+        self.surface.req(ParamKind::Means).device()
+    }
+
+    /// Number of surface and interior Gaussians.
+    pub fn counts(&self) -> (usize, usize) {
+        (
+            self.surface.len(),
+            self.interior.as_ref().map_or(0, |s| s.len()),
+        )
+    }
+
+    /// Light intensity (with PBR).
+    pub fn light(&self) -> Option<Tensor<2>> {
+        self.log_light.as_ref().map(|l| l.clone().exp())
+    }
+
+    fn prepare(
+        &self,
+        set: &GaussianSet,
+        camera: &Camera,
+        normals: bool,
+        offsets: bool,
+    ) -> Prepared {
+        let means = set.req(ParamKind::Means).clone();
+        let quats = set.req(ParamKind::Rotations).clone();
+        let log_scales = set.req(ParamKind::LogScales).clone();
+        let centre = camera.centre();
+        let dirs = view_dirs(&means, centre);
+        let colours = sh::colours(
+            set.req(ParamKind::ShDc),
+            set.get(ParamKind::ShRest),
+            &dirs,
+            self.sh_degree,
+        );
+        let normals_w =
+            normals.then(|| facing_normals(&quat_to_matrix(&quats), &log_scales, &means, centre));
+        let n = set.len();
+        Prepared {
+            opacities: set.opacities(),
+            scales: log_scales.exp(),
+            means,
+            quats,
+            colours,
+            normals_w,
+            offsets: (offsets && set.req(ParamKind::Means).device().is_autodiff()).then(|| {
+                Tensor::<2>::zeros(
+                    [n, 2],
+                    (
+                        &set.req(ParamKind::Means).device(),
+                        set.req(ParamKind::Means).dtype(),
+                    ),
+                )
+                .require_grad()
+            }),
+        }
+    }
+
+    /// Geometry (and material) features `[N, 4 or 8]` of the surface set for `camera`.
+    fn geometry_features(&self, p: &Prepared, camera: &Camera, material: bool) -> Tensor<2> {
+        let n = p.means.dims()[0];
+        let normal_w = p.normals_w.clone().expect("normals prepared");
+        let n_c = dir_to_camera(&normal_w, camera);
+        let p_c = to_camera(&p.means, camera);
+        let plane = (n_c.clone() * p_c).sum_dim(1).neg();
+        let mut f = vec![n_c, plane];
+        if material {
+            f.push(logistic(self.surface.req(ParamKind::BaseColour).clone()));
+            f.push(logistic(self.surface.req(ParamKind::Roughness).clone()));
+        }
+        let out = Tensor::cat(f, 1);
+        debug_assert_eq!(out.dims()[0], n);
+        out
+    }
+
+    /// Renders one camera. `rays` are the camera's `[H, W, 3]` pixel rays
+    /// ([`crate::geometry::pixel_rays`]).
+    pub fn render(
+        &self,
+        camera: &Camera,
+        rays: &Tensor<3>,
+        opts: RenderOptions,
+    ) -> Result<Renders, ModelError> {
+        let c = self.components;
+        let interior = if opts.stage2 && c.interior {
+            self.interior.as_ref()
+        } else {
+            None
+        };
+        let fresnel = c.fresnel && interior.is_some();
+        let pbr = opts.stage2 && c.pbr && opts.geometry;
+        let material = pbr && self.surface.get(ParamKind::BaseColour).is_some();
+        let need_normals = opts.geometry || fresnel;
+        let surf = self.prepare(&self.surface, camera, need_normals, opts.track_offsets);
+        let ns = self.surface.len();
+        let [h, w, _] = rays.dims();
+        let mut passes = 0;
+        let mut geometry_out: Option<(Tensor<3>, Tensor<2>)> = None;
+
+        // C_SH (merged with the geometry pass when they blend the same splats alike).
+        let merged = interior.is_none() && !fresnel;
+        let (c_sh, alpha_sh, surface_radii, interior_radii, int_prepared) = if merged {
+            let mut feats = vec![surf.colours.clone()];
+            if opts.geometry {
+                feats.push(self.geometry_features(&surf, camera, material));
+            }
+            let out = splat(&surf, surf.opacities.clone(), Tensor::cat(feats, 1), camera)?;
+            passes += 1;
+            let ch = out.image.dims()[2];
+            let c_sh = out.image.clone().slice([0..h, 0..w, 0..3]);
+            if opts.geometry {
+                geometry_out = Some((out.image.slice([0..h, 0..w, 3..ch]), out.alpha.clone()));
+            }
+            (c_sh, out.alpha, host_column(out.aux, 0), Vec::new(), None)
+        } else {
+            let surf_op = if fresnel {
+                let normals = surf.normals_w.clone().expect("normals prepared");
+                let to_cam = view_dirs(&surf.means, camera.centre()).neg();
+                let cos = (normals * to_cam).sum_dim(1).reshape([ns]);
+                surf.opacities.clone() * pbr::schlick(cos, opts.shading.f0)
+            } else {
+                surf.opacities.clone()
+            };
+            let surf_w = Prepared {
+                means: surf.means.clone(),
+                quats: surf.quats.clone(),
+                scales: surf.scales.clone(),
+                opacities: surf_op,
+                colours: surf.colours.clone(),
+                normals_w: None,
+                offsets: surf.offsets.clone(),
+            };
+            let (all, int_p) = match interior {
+                Some(set) => {
+                    let ip = self.prepare(set, camera, false, opts.track_offsets);
+                    (cat_prepared(&surf_w, &ip), Some(ip))
+                }
+                None => (surf_w, None),
+            };
+            let out = splat(&all, all.opacities.clone(), all.colours.clone(), camera)?;
+            passes += 1;
+            let radii = host_column(out.aux, 0);
+            let (sr, ir) = (radii[..ns].to_vec(), radii[ns..].to_vec());
+            (out.image, out.alpha, sr, ir, int_p)
+        };
+
+        if opts.geometry && geometry_out.is_none() {
+            let feats = self.geometry_features(&surf, camera, material);
+            let out = splat(&surf, surf.opacities.clone(), feats, camera)?;
+            passes += 1;
+            geometry_out = Some((out.image, out.alpha));
+        }
+        let geometry = geometry_out.map(|(maps, coverage)| {
+            let ch = maps.dims()[2];
+            let normal = maps.clone().slice([0..h, 0..w, 0..3]);
+            let plane = maps.clone().slice([0..h, 0..w, 3..4]).reshape([h, w]);
+            let depth = unbiased_depth(&normal, &plane, rays);
+            let (base, roughness) = if ch >= 8 {
+                (
+                    Some(maps.clone().slice([0..h, 0..w, 4..7])),
+                    Some(maps.slice([0..h, 0..w, 7..8]).reshape([h, w])),
+                )
+            } else {
+                (None, None)
+            };
+            GeometryMaps {
+                normal,
+                plane,
+                coverage,
+                depth,
+                base,
+                roughness,
+            }
+        });
+
+        let scatter = match (&int_prepared, pbr) {
+            (Some(ip), true) => {
+                let out = splat(ip, ip.opacities.clone(), ip.colours.clone(), camera)?;
+                passes += 1;
+                Some(out.image)
+            }
+            _ => None,
+        };
+
+        let c_pbr = match (&geometry, pbr, self.light()) {
+            (Some(g), true, Some(light)) => {
+                let gb = GBuffer {
+                    normal: g.normal.clone(),
+                    depth: g.depth.clone(),
+                    coverage: g.coverage.clone(),
+                    base: g.base.clone().expect("material maps with PBR"),
+                    roughness: g.roughness.clone().expect("material maps with PBR"),
+                    scatter: scatter.clone(),
+                    rays: rays.clone(),
+                };
+                let shaded = pbr::shade(&gb, light, opts.shading).colour;
+                Some(if opts.pbr_srgb {
+                    pbr::linear_to_srgb(shaded)
+                } else {
+                    shaded
+                })
+            }
+            _ => None,
+        };
+
+        Ok(Renders {
+            c_sh,
+            alpha_sh,
+            geometry,
+            scatter,
+            c_pbr,
+            passes,
+            surface_radii,
+            interior_radii,
+            surface_offsets: surf.offsets,
+            interior_offsets: int_prepared.and_then(|p| p.offsets),
+        })
+    }
+
+    /// Renders only the surface geometry (normal, plane distance, depth, coverage) of a camera:
+    /// one pass of four channels. Used for the multi-view neighbour and for mesh extraction.
+    pub fn render_depth(
+        &self,
+        camera: &Camera,
+        rays: &Tensor<3>,
+    ) -> Result<GeometryMaps, ModelError> {
+        let surf = self.prepare(&self.surface, camera, true, false);
+        let feats = self.geometry_features(&surf, camera, false);
+        let out = splat(&surf, surf.opacities.clone(), feats, camera)?;
+        let [h, w, _] = rays.dims();
+        let normal = out.image.clone().slice([0..h, 0..w, 0..3]);
+        let plane = out.image.slice([0..h, 0..w, 3..4]).reshape([h, w]);
+        let depth = unbiased_depth(&normal, &plane, rays);
+        Ok(GeometryMaps {
+            normal,
+            plane,
+            coverage: out.alpha,
+            depth,
+            base: None,
+            roughness: None,
+        })
+    }
+}
+
+/// A `[1, 1]` tensor holding `value`.
+pub fn scalar_param(value: f64, device: &Device) -> Tensor<2> {
+    let t = Tensor::<2>::from_data(TensorData::new(vec![value as f32], [1, 1]), device);
+    if device.is_autodiff() {
+        t.require_grad()
+    } else {
+        t
+    }
+}

@@ -1,0 +1,689 @@
+//! The training step and its schedule.
+//!
+//! Stage 1 (steps `< stage2_start`): the surface set alone, photometric (C_SH) plus mask and
+//! flattening. Stage 2: the interior set is added (placed just inside the surface set), C_SH
+//! blends both with Fresnel-weighted surface opacity, and C_PBR, the PGSR geometric terms,
+//! interior containment and material smoothness join the loss (each as switched on).
+//!
+//! A step whose loss or any gradient is not finite is skipped (nothing is written into the
+//! parameters or the optimiser) and counted. Every random choice is derived from the seed
+//! and the step number, so a resumed run repeats an uninterrupted one exactly.
+
+use std::collections::HashMap;
+
+use burn::tensor::{Bool, Device, Tensor};
+use rand::{RngExt, SeedableRng, rngs::StdRng};
+use serde::{Deserialize, Serialize};
+
+use crate::config::{Init, TrainConfig};
+use crate::densify::{DensifyReport, DensifyStats, densify_and_prune, reset_opacity};
+use crate::error::ModelError;
+use crate::gaussians::{GaussianSet, ParamKind, SetKind, host_set_from_points};
+use crate::losses;
+use crate::model::{Model, RenderOptions, scalar_param};
+use crate::optim::SetOptimizer;
+use crate::pbr::ShadingParams;
+use crate::views::{ViewTensors, neighbours};
+
+/// Counters kept across the run (saved in checkpoints).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Counters {
+    /// Steps skipped because the loss or a gradient was not finite.
+    pub skipped_steps: usize,
+    /// Raster passes run so far.
+    pub passes: usize,
+    /// Densifications run.
+    pub densifications: usize,
+}
+
+/// What one step did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepReport {
+    /// The step index (before incrementing).
+    pub step: usize,
+    /// 1 or 2.
+    pub stage: u8,
+    /// Training view used.
+    pub view: usize,
+    /// Total loss (NaN if it was not finite).
+    pub loss: f64,
+    /// Each term's weighted value.
+    pub terms: Vec<(&'static str, f64)>,
+    /// Raster passes this step.
+    pub passes: usize,
+    /// Whether the update was skipped.
+    pub skipped: bool,
+    /// Densification done after this step.
+    pub densified: Option<(DensifyReport, DensifyReport)>,
+    /// Set sizes after the step.
+    pub counts: (usize, usize),
+}
+
+/// The loss of one step before its backward pass.
+pub struct Forward {
+    /// The total loss.
+    pub total: Tensor<1>,
+    /// The weighted terms.
+    pub terms: Vec<(&'static str, Tensor<1>)>,
+    /// The renders of the step's view.
+    pub renders: crate::model::Renders,
+    /// Raster passes run (including the multi-view neighbour).
+    pub passes: usize,
+    /// Training view index.
+    pub view: usize,
+    /// Whether the step is in stage 2.
+    pub stage2: bool,
+}
+
+/// A model, its optimiser state and the training views.
+pub struct Trainer {
+    /// The configuration.
+    pub config: TrainConfig,
+    /// The model (autodiff leaves).
+    pub model: Model,
+    /// Training views on the device.
+    pub views: Vec<ViewTensors>,
+    /// Neighbours of each training view (multi-view term).
+    pub neighbours: Vec<Vec<usize>>,
+    /// Scene extent (position learning rate and densification scale with it).
+    pub extent: f64,
+    /// Next step to run.
+    pub step: usize,
+    /// Run counters.
+    pub counters: Counters,
+    pub(crate) opt_surface: SetOptimizer,
+    pub(crate) opt_interior: SetOptimizer,
+    pub(crate) opt_light: SetOptimizer,
+    pub(crate) stats_surface: DensifyStats,
+    pub(crate) stats_interior: DensifyStats,
+    pub(crate) device: Device,
+}
+
+impl std::fmt::Debug for Trainer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Trainer")
+            .field("step", &self.step)
+            .field("counts", &self.model.counts())
+            .field("counters", &self.counters)
+            .finish()
+    }
+}
+
+/// Seeded generator for one purpose at one step.
+pub fn step_rng(seed: u64, step: usize, purpose: u64) -> StdRng {
+    let mut x = seed
+        ^ (step as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ purpose.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    x ^= x >> 31;
+    StdRng::seed_from_u64(x)
+}
+
+const RNG_INIT: u64 = 1;
+const RNG_VIEW: u64 = 2;
+const RNG_NEIGHBOUR: u64 = 3;
+const RNG_DENSIFY: u64 = 4;
+const RNG_INTERIOR: u64 = 5;
+
+fn uniform_ball(rng: &mut StdRng, radius: f64) -> [f32; 3] {
+    loop {
+        let p: [f64; 3] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
+        if p.iter().map(|v| v * v).sum::<f64>() <= 1.0 {
+            return p.map(|v| (v * radius) as f32);
+        }
+    }
+}
+
+fn project_host(cam: &gtsr_render_kernels::Camera, p: [f32; 3]) -> Option<(f64, f64)> {
+    let pc: [f64; 3] = std::array::from_fn(|i| {
+        (0..3)
+            .map(|j| cam.rotation[i][j] * f64::from(p[j]))
+            .sum::<f64>()
+            + cam.translation[i]
+    });
+    (pc[2] > cam.near).then(|| {
+        (
+            cam.fx * pc[0] / pc[2] + cam.cx,
+            cam.fy * pc[1] / pc[2] + cam.cy,
+        )
+    })
+}
+
+/// Initial surface points: uniform in a ball, or (mask-carved) only those whose projection
+/// lies inside every training mask that sees them. Masks are read from the host views.
+pub fn initial_points(
+    config: &TrainConfig,
+    masks: &[(gtsr_render_kernels::Camera, Option<Vec<f32>>)],
+) -> Result<Vec<[f32; 3]>, ModelError> {
+    let mut rng = step_rng(config.seed, 0, RNG_INIT);
+    let n = config.init_surface;
+    match config.init {
+        Init::Random => Ok((0..n)
+            .map(|_| uniform_ball(&mut rng, config.init_radius))
+            .collect()),
+        Init::MaskCarved => {
+            if masks.iter().all(|(_, m)| m.is_none()) {
+                return Err(ModelError::Config(
+                    "mask-carved initialisation needs masks; the data has none".into(),
+                ));
+            }
+            let mut pts = Vec::with_capacity(n);
+            let mut tries = 0usize;
+            while pts.len() < n && tries < n * 200 {
+                tries += 1;
+                let p = uniform_ball(&mut rng, config.init_radius);
+                let inside = masks
+                    .iter()
+                    .all(|(cam, m)| match (m, project_host(cam, p)) {
+                        (Some(m), Some((u, v))) => {
+                            let (w, h) = (cam.width as f64, cam.height as f64);
+                            if u < 0.0 || v < 0.0 || u >= w || v >= h {
+                                true
+                            } else {
+                                m[(v as usize) * cam.width as usize + u as usize] >= 0.5
+                            }
+                        }
+                        _ => true,
+                    });
+                if inside {
+                    pts.push(p);
+                }
+            }
+            if pts.len() < n / 10 {
+                return Err(ModelError::Data(format!(
+                    "mask-carved initialisation found only {} of {n} points inside the masks within radius {}",
+                    pts.len(),
+                    config.init_radius
+                )));
+            }
+            Ok(pts)
+        }
+    }
+}
+
+impl Trainer {
+    /// A new run: `views` on an autodiff `device`, `extent` the scene radius, the surface set
+    /// started from `points` (see [`initial_points`]).
+    pub fn new(
+        config: TrainConfig,
+        views: Vec<ViewTensors>,
+        extent: f64,
+        points: &[[f32; 3]],
+        device: &Device,
+    ) -> Result<Trainer, ModelError> {
+        config.validate().map_err(ModelError::Config)?;
+        if views.is_empty() {
+            return Err(ModelError::Data("no training views".into()));
+        }
+        if !(extent.is_finite() && extent > 0.0) {
+            return Err(ModelError::Config(format!(
+                "scene extent must be positive, got {extent}"
+            )));
+        }
+        let c = config.components;
+        let mut rng = step_rng(config.seed, 0, RNG_INIT ^ 0xFF);
+        let host = host_set_from_points(
+            SetKind::Surface,
+            points,
+            c.sh_coeffs(),
+            c.pbr,
+            0.1,
+            &mut rng,
+        );
+        let mean_dist2 = views
+            .iter()
+            .map(|v| v.camera.centre().iter().map(|x| x * x).sum::<f64>())
+            .sum::<f64>()
+            / views.len() as f64;
+        let model = Model {
+            components: c,
+            surface: host.to_device(device),
+            interior: None,
+            log_light: c
+                .pbr
+                .then(|| scalar_param(mean_dist2.max(1e-6).ln(), device)),
+            sh_degree: 0,
+        };
+        let cams: Vec<_> = views.iter().map(|v| v.camera.clone()).collect();
+        let neighbours = neighbours(&cams, config.neighbour_max_angle_deg);
+        let n = model.surface.len();
+        Ok(Trainer {
+            config,
+            model,
+            views,
+            neighbours,
+            extent,
+            step: 0,
+            counters: Counters::default(),
+            opt_surface: SetOptimizer::default(),
+            opt_interior: SetOptimizer::default(),
+            opt_light: SetOptimizer::default(),
+            stats_surface: DensifyStats::new(n),
+            stats_interior: DensifyStats::new(0),
+            device: device.clone(),
+        })
+    }
+
+    /// Whether `step` is in stage 2.
+    pub fn is_stage2(&self, step: usize) -> bool {
+        step >= self.config.stage2_start
+    }
+
+    /// The training view used at `step`: a seeded permutation per epoch (as 3DGS).
+    pub fn view_for_step(&self, step: usize) -> usize {
+        let n = self.views.len();
+        let epoch = step / n;
+        let mut perm: Vec<usize> = (0..n).collect();
+        let mut rng = step_rng(self.config.seed, epoch, RNG_VIEW);
+        for i in (1..n).rev() {
+            let j = rng.random_range(0..=i);
+            perm.swap(i, j);
+        }
+        perm[step % n]
+    }
+
+    /// lambda2 at `step`: linear from `single_view_start` at stage 2's start to
+    /// `single_view_end` at the last step.
+    pub fn lambda2(&self, step: usize) -> f64 {
+        let w = &self.config.weights;
+        let (s, e) = (self.config.stage2_start, self.config.iterations.max(1));
+        let t = if e > s {
+            (step.saturating_sub(s)) as f64 / (e - s) as f64
+        } else {
+            1.0
+        };
+        w.single_view_start + (w.single_view_end - w.single_view_start) * t.clamp(0.0, 1.0)
+    }
+
+    /// Position learning rate at `step` (exponential decay, times the extent).
+    pub fn position_lr(&self, step: usize) -> f64 {
+        let lr = &self.config.lr;
+        let t = (step as f64 / self.config.iterations.max(1) as f64).clamp(0.0, 1.0);
+        (lr.position_start.ln() * (1.0 - t) + lr.position_end.max(1e-30).ln() * t).exp()
+            * self.extent
+    }
+
+    fn lr_for(&self, step: usize, kind: ParamKind) -> f64 {
+        let lr = &self.config.lr;
+        match kind {
+            ParamKind::Means => self.position_lr(step),
+            ParamKind::Rotations => lr.rotation,
+            ParamKind::LogScales => lr.scale,
+            ParamKind::Opacity => lr.opacity,
+            ParamKind::ShDc => lr.sh_dc,
+            ParamKind::ShRest => lr.sh_rest,
+            ParamKind::BaseColour => lr.base_colour,
+            ParamKind::Roughness => lr.roughness,
+        }
+    }
+
+    /// Render options at `step`.
+    pub fn render_options(&self, step: usize, track_offsets: bool) -> RenderOptions {
+        RenderOptions {
+            stage2: self.is_stage2(step),
+            geometry: self.is_stage2(step),
+            track_offsets,
+            shading: ShadingParams {
+                f0: self.config.f0,
+                gamma: self.config.pbr_gamma,
+                min_roughness: self.config.min_roughness,
+            },
+            pbr_srgb: self.config.pbr_srgb_output,
+        }
+    }
+
+    /// Adds the interior set (stage 2): points just inside the surface set, each moved from a
+    /// random surface Gaussian against its normal as seen from the nearest training camera
+    /// (which faces outwards on the visible surface) by 2 to 10 % of the extent.
+    fn add_interior(&mut self) {
+        let host = self.model.surface.to_host();
+        let (means, _) = host.column(ParamKind::Means).expect("means");
+        let (rots, _) = host.column(ParamKind::Rotations).expect("rotations");
+        let (ls, _) = host.column(ParamKind::LogScales).expect("scales");
+        let mut rng = step_rng(self.config.seed, self.step, RNG_INTERIOR);
+        let centres: Vec<[f64; 3]> = self.views.iter().map(|v| v.camera.centre()).collect();
+        let m = self.config.init_interior;
+        let mut pts = Vec::with_capacity(m);
+        for _ in 0..m {
+            let i = rng.random_range(0..host.n);
+            let mu: [f32; 3] = std::array::from_fn(|k| means[3 * i + k]);
+            let q = &rots[4 * i..4 * i + 4];
+            let s = &ls[3 * i..3 * i + 3];
+            let axis = (0..3).min_by(|a, b| s[*a].total_cmp(&s[*b])).unwrap_or(0);
+            let r = crate::densify::quat_matrix(q);
+            let mut nrm = [r[0][axis], r[1][axis], r[2][axis]];
+            let cam = centres
+                .iter()
+                .min_by(|a, b| {
+                    let d = |c: &[f64; 3]| {
+                        (0..3)
+                            .map(|k| (c[k] - f64::from(mu[k])).powi(2))
+                            .sum::<f64>()
+                    };
+                    d(a).total_cmp(&d(b))
+                })
+                .expect("views");
+            let to_cam: f64 = (0..3)
+                .map(|k| (cam[k] - f64::from(mu[k])) * f64::from(nrm[k]))
+                .sum();
+            if to_cam < 0.0 {
+                nrm = nrm.map(|v| -v);
+            }
+            let depth = rng.random_range(0.02..0.1) * self.extent;
+            pts.push(std::array::from_fn(|k| mu[k] - (depth as f32) * nrm[k]));
+        }
+        let c = self.config.components;
+        let set =
+            host_set_from_points(SetKind::Interior, &pts, c.sh_coeffs(), false, 0.1, &mut rng);
+        self.stats_interior = DensifyStats::new(set.n);
+        self.opt_interior = SetOptimizer::default();
+        self.model.interior = Some(set.to_device(&self.device));
+    }
+
+    /// Prepares `step` (adds the interior set at stage 2, sets the SH degree) and computes its
+    /// loss: the weighted terms, the renders and the raster passes run.
+    pub fn forward(&mut self, step: usize) -> Result<Forward, ModelError> {
+        let cfg = self.config.clone();
+        let c = cfg.components;
+        let stage2 = self.is_stage2(step);
+        if stage2 && c.interior && self.model.interior.is_none() {
+            self.add_interior();
+        }
+        self.model.sh_degree = ((step / cfg.sh_increase_every.max(1)) as u32).min(c.sh_degree);
+        let vi = self.view_for_step(step);
+        let view = self.views[vi].clone();
+        let opts = self.render_options(step, true);
+        let r = self.model.render(&view.camera, &view.rays, opts)?;
+        let mut passes = r.passes;
+        let mut terms: Vec<(&'static str, Tensor<1>)> = Vec::new();
+        let w = &cfg.weights;
+        terms.push((
+            "c_sh",
+            losses::photometric(r.c_sh.clone(), view.rgb.clone(), w.lambda_l1),
+        ));
+        if let Some(pbr) = &r.c_pbr {
+            terms.push((
+                "c_pbr",
+                losses::photometric(pbr.clone(), view.rgb.clone(), w.lambda_l1),
+            ));
+        }
+        let coverage = r
+            .geometry
+            .as_ref()
+            .map_or(r.alpha_sh.clone(), |g| g.coverage.clone());
+        if let (Some(mask), true) = (&view.mask, w.mask > 0.0) {
+            terms.push(("mask", losses::mask_l1(&coverage, mask) * w.mask));
+        }
+        if w.flatten > 0.0 {
+            terms.push((
+                "flatten",
+                losses::flatten(&self.model.surface.scales()) * w.flatten,
+            ));
+        }
+        if let Some(g) = &r.geometry {
+            let valid = valid_pixels(&g.coverage, view.mask.as_ref());
+            if c.single_view {
+                let l2 = self.lambda2(step);
+                terms.push((
+                    "single_view",
+                    losses::single_view(&g.depth, &g.normal, &view.rays, &valid, &view.edge_weight)
+                        * l2,
+                ));
+            }
+            if c.multi_view && !self.neighbours[vi].is_empty() {
+                let mut rng = step_rng(cfg.seed, step, RNG_NEIGHBOUR);
+                let list = &self.neighbours[vi];
+                let ni = list[rng.random_range(0..list.len())];
+                let nv = self.views[ni].clone();
+                let ng = self.model.render_depth(&nv.camera, &nv.rays)?;
+                passes += 1;
+                let valid_n = valid_pixels(&ng.coverage, nv.mask.as_ref());
+                let mv = losses::multi_view(
+                    &g.depth,
+                    &view.rays,
+                    &valid,
+                    &view.camera,
+                    &ng.depth,
+                    &valid_n,
+                    &nv.camera,
+                    cfg.multi_view_max_error_px,
+                );
+                terms.push(("multi_view", mv.loss * w.multi_view));
+            }
+            if let (Some(int), true) = (&self.model.interior, w.interior > 0.0) {
+                terms.push((
+                    "interior",
+                    losses::interior_containment(
+                        int.req(ParamKind::Means),
+                        &view.camera,
+                        &g.depth,
+                        &valid,
+                    ) * w.interior,
+                ));
+            }
+            if c.smoothness {
+                if let Some(b) = &g.base {
+                    terms.push((
+                        "smooth_base",
+                        losses::edge_aware_smoothness(b, &view.smooth_wx, &view.smooth_wy)
+                            * w.smooth_base,
+                    ));
+                }
+                if let Some(rough) = &g.roughness {
+                    let [h, wd] = rough.dims();
+                    terms.push((
+                        "smooth_roughness",
+                        losses::edge_aware_smoothness(
+                            &rough.clone().reshape([h, wd, 1]),
+                            &view.smooth_wx,
+                            &view.smooth_wy,
+                        ) * w.smooth_roughness,
+                    ));
+                }
+            }
+        }
+        let total = terms
+            .iter()
+            .map(|(_, t)| t.clone())
+            .reduce(|a, b| a + b)
+            .expect("at least the photometric term");
+        Ok(Forward {
+            total,
+            terms,
+            renders: r,
+            passes,
+            view: vi,
+            stage2,
+        })
+    }
+
+    /// Gradient magnitudes (sum of absolute values) of every parameter tensor for the loss of
+    /// the current step, without updating anything: `(set, parameter, |grad|_1)`.
+    pub fn gradient_norms(&mut self) -> Result<Vec<(String, String, f64)>, ModelError> {
+        let f = self.forward(self.step)?;
+        let grads = f.total.backward();
+        let mut out = Vec::new();
+        let sets = std::iter::once(&self.model.surface).chain(self.model.interior.as_ref());
+        for set in sets {
+            for (k, t) in &set.params {
+                let g = t
+                    .grad(&grads)
+                    .map_or(0.0, |g| g.abs().sum().into_scalar::<f64>());
+                out.push((set.kind.name().to_string(), k.name().to_string(), g));
+            }
+        }
+        if let Some(l) = &self.model.log_light {
+            let g = l
+                .grad(&grads)
+                .map_or(0.0, |g| g.abs().sum().into_scalar::<f64>());
+            out.push(("light".into(), "log_intensity".into(), g));
+        }
+        Ok(out)
+    }
+
+    /// Runs one step (render, loss, backward, Adam, densification on schedule).
+    pub fn step(&mut self) -> Result<StepReport, ModelError> {
+        let step = self.step;
+        let cfg = self.config.clone();
+        let Forward {
+            total,
+            terms,
+            renders: r,
+            passes,
+            view: vi,
+            stage2,
+        } = self.forward(step)?;
+        let view = self.views[vi].clone();
+        let loss = total.clone().into_scalar::<f64>();
+        let term_values: Vec<(&'static str, f64)> = terms
+            .iter()
+            .map(|(n, t)| (*n, t.clone().into_scalar::<f64>()))
+            .collect();
+        self.counters.passes += passes;
+        let grads = total.backward();
+        let collect = |set: &GaussianSet| -> HashMap<ParamKind, Tensor<2>> {
+            set.params
+                .iter()
+                .filter_map(|(k, t)| t.grad(&grads).map(|g| (*k, g)))
+                .collect()
+        };
+        let g_surf = collect(&self.model.surface);
+        let g_int = self.model.interior.as_ref().map(collect);
+        let g_light = self.model.log_light.as_ref().and_then(|l| l.grad(&grads));
+        let finite = |m: &HashMap<ParamKind, Tensor<2>>| {
+            m.values()
+                .all(|g| g.clone().sum().into_scalar::<f64>().is_finite())
+        };
+        let all_finite = loss.is_finite()
+            && finite(&g_surf)
+            && g_int.as_ref().is_none_or(finite)
+            && g_light
+                .as_ref()
+                .is_none_or(|g| g.clone().sum().into_scalar::<f64>().is_finite());
+        let mut report = StepReport {
+            step,
+            stage: if stage2 { 2 } else { 1 },
+            view: vi,
+            loss,
+            terms: term_values,
+            passes,
+            skipped: !all_finite,
+            densified: None,
+            counts: self.model.counts(),
+        };
+        if !all_finite {
+            self.counters.skipped_steps += 1;
+            self.step += 1;
+            return Ok(report);
+        }
+        // Densification statistics.
+        if let Some(off) = &r.surface_offsets
+            && let Some(g) = off.grad(&grads)
+        {
+            let gv: Vec<f32> = g.into_data().convert::<f32>().into_vec().expect("f32");
+            self.stats_surface
+                .add(&gv, &r.surface_radii, view.size().0, view.size().1);
+        }
+        if let Some(off) = &r.interior_offsets
+            && let Some(g) = off.grad(&grads)
+        {
+            let gv: Vec<f32> = g.into_data().convert::<f32>().into_vec().expect("f32");
+            self.stats_interior
+                .add(&gv, &r.interior_radii, view.size().0, view.size().1);
+        }
+        // Adam.
+        let rates: HashMap<ParamKind, f64> = ParamKind::ALL
+            .iter()
+            .map(|k| (*k, self.lr_for(step, *k)))
+            .collect();
+        let lr = |k: ParamKind| rates[&k];
+        self.model.surface = self
+            .opt_surface
+            .step(self.model.surface.clone(), &g_surf, &lr);
+        if let (Some(int), Some(g)) = (self.model.interior.clone(), g_int) {
+            self.model.interior = Some(self.opt_interior.step(int, &g, &lr));
+        }
+        if let (Some(l), Some(g)) = (self.model.log_light.clone(), g_light) {
+            let set = GaussianSet {
+                kind: SetKind::Surface,
+                params: vec![(ParamKind::Opacity, l)],
+            };
+            let grads = HashMap::from([(ParamKind::Opacity, g)]);
+            let light_lr = cfg.lr.light;
+            let out = self.opt_light.step(set, &grads, &|_| light_lr);
+            self.model.log_light = out.params.into_iter().next().map(|(_, t)| t);
+        }
+        report.densified = self.maybe_densify(step);
+        report.counts = self.model.counts();
+        self.step += 1;
+        Ok(report)
+    }
+
+    fn maybe_densify(&mut self, step: usize) -> Option<(DensifyReport, DensifyReport)> {
+        let d = self.config.densify.clone();
+        let s1 = step + 1;
+        let mut out = None;
+        if s1 >= d.start && s1 <= d.end && s1.is_multiple_of(d.every) {
+            let prune_big = d.opacity_reset_every > 0 && s1 > d.opacity_reset_every;
+            let mut rng = step_rng(self.config.seed, step, RNG_DENSIFY);
+            let host = self.model.surface.to_host();
+            let ds = densify_and_prune(
+                &host,
+                &self.stats_surface,
+                &d,
+                self.extent,
+                prune_big,
+                d.max_surface,
+                &mut rng,
+            );
+            self.opt_surface.reindex(&ds.keep, ds.added);
+            self.model.surface = ds.set.to_device(&self.device);
+            self.stats_surface = DensifyStats::new(self.model.surface.len());
+            let mut rep_i = DensifyReport::default();
+            if let Some(int) = &self.model.interior {
+                let host = int.to_host();
+                let di = densify_and_prune(
+                    &host,
+                    &self.stats_interior,
+                    &d,
+                    self.extent,
+                    prune_big,
+                    d.max_interior,
+                    &mut rng,
+                );
+                self.opt_interior.reindex(&di.keep, di.added);
+                rep_i = di.report;
+                self.model.interior = Some(di.set.to_device(&self.device));
+                self.stats_interior = DensifyStats::new(di.keep.len() + di.added);
+            }
+            self.counters.densifications += 1;
+            out = Some((ds.report, rep_i));
+        }
+        if d.opacity_reset_every > 0 && s1.is_multiple_of(d.opacity_reset_every) && s1 <= d.end {
+            let mut host = self.model.surface.to_host();
+            reset_opacity(&mut host, 0.01);
+            self.model.surface = host.to_device(&self.device);
+            self.opt_surface.reset(ParamKind::Opacity);
+            if let Some(int) = &self.model.interior {
+                let mut host = int.to_host();
+                reset_opacity(&mut host, 0.01);
+                self.model.interior = Some(host.to_device(&self.device));
+                self.opt_interior.reset(ParamKind::Opacity);
+            }
+        }
+        out
+    }
+
+    /// The device the run is on.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+}
+
+/// Pixels whose depth is trusted: the mask (when present) and surface coverage above 0.5.
+pub fn valid_pixels(coverage: &Tensor<2>, mask: Option<&Tensor<2>>) -> Tensor<2, Bool> {
+    let cov = coverage.clone().detach().greater_elem(0.5);
+    match mask {
+        Some(m) => cov.bool_and(m.clone().greater_equal_elem(0.5)),
+        None => cov,
+    }
+}

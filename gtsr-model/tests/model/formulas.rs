@@ -1,0 +1,493 @@
+//! The model's formulas against direct per-pixel / per-Gaussian evaluations in f64.
+
+use burn::tensor::{Device, Tensor, TensorData};
+use gtsr_model::config::Components;
+use gtsr_model::gaussians::{HostSet, ParamKind, SetKind, layout, logit};
+use gtsr_model::geometry::pixel_rays;
+use gtsr_model::losses;
+use gtsr_model::model::{Model, RenderOptions};
+use gtsr_model::pbr::{self, GBuffer, ShadingParams};
+use gtsr_model::sh;
+use gtsr_render_kernels::cpu::HostGaussians;
+use gtsr_render_kernels::reference::render_reference;
+use gtsr_render_kernels::{AlphaCutoff, Camera, SplatConfig};
+use rand::{RngExt, SeedableRng, rngs::StdRng};
+
+const SHADING: ShadingParams = ShadingParams {
+    f0: 0.04,
+    gamma: 0.3,
+    min_roughness: 0.08,
+};
+
+fn camera() -> Camera {
+    Camera::look_at([0.3, -0.2, -4.0], [0.0; 3], [0.0, -1.0, 0.0], 0.7, 40, 32).unwrap()
+}
+
+fn random_set(
+    kind: SetKind,
+    n: usize,
+    components: &Components,
+    rng: &mut StdRng,
+    flat: bool,
+) -> HostSet {
+    let lay = layout(kind, components.sh_coeffs(), components.pbr);
+    let mut set = HostSet {
+        kind,
+        n: 0,
+        columns: lay.iter().map(|(k, w)| (*k, *w, Vec::new())).collect(),
+    };
+    for _ in 0..n {
+        let row: Vec<Vec<f32>> = lay
+            .iter()
+            .map(|(k, w)| match k {
+                ParamKind::Means => (0..3).map(|_| rng.random_range(-0.6..0.6)).collect(),
+                ParamKind::LogScales => {
+                    let mut s: Vec<f32> = (0..3).map(|_| rng.random_range(-2.5f32..-1.2)).collect();
+                    if flat {
+                        s[rng.random_range(0..3)] = -6.0;
+                    }
+                    s
+                }
+                ParamKind::Opacity => vec![rng.random_range(-1.0..2.0)],
+                _ => (0..*w).map(|_| rng.random_range(-0.8..0.8)).collect(),
+            })
+            .collect();
+        set.push_row(&row);
+    }
+    set
+}
+
+fn quat_matrix(q: &[f64]) -> [[f64; 3]; 3] {
+    let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let (w, x, y, z) = (q[0] / n, q[1] / n, q[2] / n, q[3] / n);
+    [
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
+    ]
+}
+
+/// Per Gaussian: opacity (times Fresnel for surface ones) and SH colour, in f64 on the host.
+fn direct_inputs(set: &HostSet, cam: &Camera, degree: u32, fresnel: bool) -> (Vec<f64>, Vec<f64>) {
+    let c = cam.centre();
+    let col = |k| {
+        set.column(k)
+            .map(|(v, w)| (v.iter().map(|x| f64::from(*x)).collect::<Vec<_>>(), w))
+    };
+    let (means, _) = col(ParamKind::Means).unwrap();
+    let (rot, _) = col(ParamKind::Rotations).unwrap();
+    let (ls, _) = col(ParamKind::LogScales).unwrap();
+    let (op, _) = col(ParamKind::Opacity).unwrap();
+    let (dc, _) = col(ParamKind::ShDc).unwrap();
+    let rest = col(ParamKind::ShRest);
+    let mut opac = Vec::new();
+    let mut colours = Vec::new();
+    for i in 0..set.n {
+        let mu = &means[3 * i..3 * i + 3];
+        let d: Vec<f64> = (0..3).map(|k| mu[k] - c[k]).collect();
+        let len = d.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let dir = [d[0] / len, d[1] / len, d[2] / len];
+        let basis = sh::basis_host(dir, degree);
+        for ch in 0..3 {
+            let mut v = basis[0] * dc[3 * i + ch] + 0.5;
+            for (j, b) in basis.iter().enumerate().skip(1) {
+                let (r, w) = rest.as_ref().unwrap();
+                v += b * r[i * w + (j - 1) * 3 + ch];
+            }
+            colours.push(v.max(0.0));
+        }
+        let mut o = 1.0 / (1.0 + (-op[i]).exp());
+        if fresnel {
+            let r = quat_matrix(&rot[4 * i..4 * i + 4]);
+            let s = &ls[3 * i..3 * i + 3];
+            let a = (0..3).min_by(|x, y| s[*x].total_cmp(&s[*y])).unwrap();
+            let n = [r[0][a], r[1][a], r[2][a]];
+            let cos = -(0..3).map(|k| n[k] * dir[k]).sum::<f64>();
+            let cos = cos.abs(); // the normal is flipped to face the camera
+            o *= 0.04 + 0.96 * (1.0 - cos).powi(5);
+        }
+        opac.push(o);
+    }
+    (opac, colours)
+}
+
+#[test]
+fn c_sh_matches_direct_evaluation() {
+    let device = Device::ndarray();
+    let comps = Components::FULL;
+    let mut rng = StdRng::seed_from_u64(7);
+    let surf = random_set(SetKind::Surface, 24, &comps, &mut rng, true);
+    let int = random_set(SetKind::Interior, 12, &comps, &mut rng, false);
+    let model = Model {
+        components: comps,
+        surface: surf.to_device(&device),
+        interior: Some(int.to_device(&device)),
+        log_light: Some(Tensor::from_data(
+            TensorData::new(vec![3.0f32], [1, 1]),
+            &device,
+        )),
+        sh_degree: 3,
+    };
+    let cam = camera();
+    let rays = pixel_rays(&cam, &device);
+    let opts = RenderOptions {
+        stage2: true,
+        geometry: true,
+        track_offsets: false,
+        shading: SHADING,
+        pbr_srgb: false,
+    };
+    let r = model.render(&cam, &rays, opts).unwrap();
+    assert_eq!(r.passes, 3, "C_SH, geometry, scattering");
+
+    let (mut o, mut f) = direct_inputs(&surf, &cam, 3, true);
+    let (oi, fi) = direct_inputs(&int, &cam, 3, false);
+    o.extend(oi);
+    f.extend(fi);
+    let cat = |k| {
+        let mut v: Vec<f64> = surf
+            .column(k)
+            .unwrap()
+            .0
+            .iter()
+            .map(|x| f64::from(*x))
+            .collect();
+        v.extend(int.column(k).unwrap().0.iter().map(|x| f64::from(*x)));
+        v
+    };
+    let means = cat(ParamKind::Means);
+    let quats = cat(ParamKind::Rotations);
+    let scales: Vec<f64> = cat(ParamKind::LogScales).iter().map(|v| v.exp()).collect();
+    let offsets = vec![0.0; o.len() * 2];
+    let g = HostGaussians {
+        means: &means,
+        quats: &quats,
+        scales: &scales,
+        opacities: &o,
+        features: &f,
+        xy_offsets: &offsets,
+    };
+    let cfg = SplatConfig {
+        camera: cam.clone(),
+        background: vec![0.0; 3],
+        cutoff: AlphaCutoff::Hard,
+    };
+    let direct = render_reference(&g, &cfg);
+    let got: Vec<f32> = r.c_sh.into_data().convert::<f32>().into_vec().unwrap();
+    let mut worst: f64 = 0.0;
+    for p in 0..(40 * 32) {
+        for c in 0..3 {
+            worst = worst.max((f64::from(got[p * 3 + c]) - direct[p * 4 + c]).abs());
+        }
+    }
+    assert!(
+        worst < 2e-4,
+        "C_SH differs from the direct evaluation by {worst}"
+    );
+    let energy: f64 = direct.iter().map(|v| v.abs()).sum();
+    assert!(energy > 1.0, "the scene must cover pixels");
+}
+
+#[test]
+fn unbiased_depth_is_the_ray_plane_intersection() {
+    let device = Device::ndarray();
+    let comps = Components {
+        interior: false,
+        fresnel: false,
+        pbr: false,
+        sh_degree: 0,
+        ..Components::FULL
+    };
+    let cam = camera();
+    let rays = pixel_rays(&cam, &device);
+    // One large, flat, nearly opaque Gaussian, tilted.
+    let lay = layout(SetKind::Surface, 1, false);
+    let (a, b) = (0.4f64, 0.3f64);
+    let q = [
+        (a / 2.0).cos(),
+        (a / 2.0).sin() * b.cos(),
+        (a / 2.0).sin() * b.sin(),
+        0.0,
+    ];
+    let mean = [0.1f32, -0.05, 0.2];
+    let mut set = HostSet {
+        kind: SetKind::Surface,
+        n: 0,
+        columns: lay.iter().map(|(k, w)| (*k, *w, Vec::new())).collect(),
+    };
+    set.push_row(&[
+        mean.to_vec(),
+        q.iter().map(|v| *v as f32).collect(),
+        vec![(2.0f32).ln(), (2.0f32).ln(), (1e-4f32).ln()],
+        vec![logit(0.999) as f32],
+        vec![0.0; 3],
+    ]);
+    let model = Model {
+        components: comps,
+        surface: set.to_device(&device),
+        interior: None,
+        log_light: None,
+        sh_degree: 0,
+    };
+    let g = model.render_depth(&cam, &rays).unwrap();
+    let depth: Vec<f32> = g.depth.into_data().convert::<f32>().into_vec().unwrap();
+    let cov: Vec<f32> = g.coverage.into_data().convert::<f32>().into_vec().unwrap();
+    // Plane in camera space: normal = R * (third rotation column), point = R mean + t.
+    let r = quat_matrix(&q);
+    let nw = [r[0][2], r[1][2], r[2][2]];
+    let nc: [f64; 3] = std::array::from_fn(|i| (0..3).map(|j| cam.rotation[i][j] * nw[j]).sum());
+    let pc: [f64; 3] = std::array::from_fn(|i| {
+        (0..3)
+            .map(|j| cam.rotation[i][j] * f64::from(mean[j]))
+            .sum::<f64>()
+            + cam.translation[i]
+    });
+    let mut checked = 0;
+    for j in 0..32usize {
+        for i in 0..40usize {
+            let p = j * 40 + i;
+            if cov[p] < 0.9 {
+                continue;
+            }
+            let ray = [
+                (i as f64 + 0.5 - cam.cx) / cam.fx,
+                (j as f64 + 0.5 - cam.cy) / cam.fy,
+                1.0,
+            ];
+            let num: f64 = (0..3).map(|k| nc[k] * pc[k]).sum();
+            let den: f64 = (0..3).map(|k| nc[k] * ray[k]).sum();
+            let z = num / den;
+            let rel = (f64::from(depth[p]) - z).abs() / z;
+            assert!(
+                rel < 1e-4,
+                "pixel ({i}, {j}): depth {} vs plane {z}",
+                depth[p]
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked > 300, "only {checked} covered pixels");
+}
+
+#[test]
+fn pbr_matches_per_pixel_evaluation_and_stays_finite_at_extremes() {
+    let device = Device::ndarray().autodiff();
+    let (h, w) = (3usize, 4usize);
+    let mut rng = StdRng::seed_from_u64(11);
+    let mut normal = Vec::new();
+    let mut depth = Vec::new();
+    let mut cov = Vec::new();
+    let mut base = Vec::new();
+    let mut rough = Vec::new();
+    let mut scatter = Vec::new();
+    let mut rays = Vec::new();
+    for p in 0..h * w {
+        let ray = [
+            rng.random_range(-0.3..0.3f32),
+            rng.random_range(-0.3..0.3f32),
+            1.0,
+        ];
+        let mut n = [
+            rng.random_range(-0.5..0.5f32),
+            rng.random_range(-0.5..0.5f32),
+            -rng.random_range(0.3..1.0f32),
+        ];
+        let c = rng.random_range(0.2..1.0f32);
+        let mut d = rng.random_range(2.0..5.0f32);
+        let mut r = rng.random_range(0.1..0.9f32) * c;
+        match p {
+            0 => r = 0.0,                    // roughness 0
+            1 => n = [ray[1], -ray[0], 0.0], // normal perpendicular to the ray: grazing
+            2 => d = 0.0,                    // depth 0
+            3 => n = [0.0, 0.0, 0.0],        // no surface
+            _ => {}
+        }
+        normal.extend(n.map(|v| v * c));
+        depth.push(d);
+        cov.push(c);
+        base.extend((0..3).map(|_| rng.random_range(0.0..1.0f32) * c));
+        rough.push(r);
+        scatter.extend((0..3).map(|_| rng.random_range(0.0..1.0f32)));
+        rays.extend(ray);
+    }
+    let leaf3 = |v: &Vec<f32>| {
+        Tensor::<3>::from_data(TensorData::new(v.clone(), [h, w, 3]), &device).require_grad()
+    };
+    let leaf2 = |v: &Vec<f32>| {
+        Tensor::<2>::from_data(TensorData::new(v.clone(), [h, w]), &device).require_grad()
+    };
+    let gb = GBuffer {
+        normal: leaf3(&normal),
+        depth: leaf2(&depth),
+        coverage: leaf2(&cov),
+        base: leaf3(&base),
+        roughness: leaf2(&rough),
+        scatter: Some(leaf3(&scatter)),
+        rays: Tensor::from_data(TensorData::new(rays.clone(), [h, w, 3]), &device),
+    };
+    let light =
+        Tensor::<2>::from_data(TensorData::new(vec![12.0f32], [1, 1]), &device).require_grad();
+    let out = pbr::shade(&gb, light.clone(), SHADING);
+    let got: Vec<f32> = out
+        .colour
+        .clone()
+        .into_data()
+        .convert::<f32>()
+        .into_vec()
+        .unwrap();
+    for p in 0..h * w {
+        let f = |v: &Vec<f32>, k: usize| f64::from(v[3 * p + k]);
+        let want = pbr::shade_pixel(
+            [f(&normal, 0), f(&normal, 1), f(&normal, 2)],
+            f64::from(depth[p]),
+            f64::from(cov[p]),
+            [f(&base, 0), f(&base, 1), f(&base, 2)],
+            f64::from(rough[p]),
+            Some([f(&scatter, 0), f(&scatter, 1), f(&scatter, 2)]),
+            [f(&rays, 0), f(&rays, 1), f(&rays, 2)],
+            12.0,
+            SHADING,
+        );
+        for k in 0..3 {
+            let g = f64::from(got[3 * p + k]);
+            assert!(
+                (g - want[k]).abs() <= 1e-4 * want[k].abs().max(1.0),
+                "pixel {p} channel {k}: {g} vs {}",
+                want[k]
+            );
+        }
+    }
+    let grads = out.colour.sum().backward();
+    for (name, g) in [
+        ("normal", gb.normal.grad(&grads).map(|g| g.into_data())),
+        ("base", gb.base.grad(&grads).map(|g| g.into_data())),
+        (
+            "scatter",
+            gb.scatter
+                .as_ref()
+                .unwrap()
+                .grad(&grads)
+                .map(|g| g.into_data()),
+        ),
+    ] {
+        let v: Vec<f32> = g.unwrap().convert::<f32>().into_vec().unwrap();
+        assert!(
+            v.iter().all(|x| x.is_finite()),
+            "{name} gradient not finite: {v:?}"
+        );
+    }
+    for (name, g) in [
+        ("depth", gb.depth.grad(&grads)),
+        ("coverage", gb.coverage.grad(&grads)),
+        ("roughness", gb.roughness.grad(&grads)),
+    ] {
+        let v: Vec<f32> = g.unwrap().into_data().convert::<f32>().into_vec().unwrap();
+        assert!(
+            v.iter().all(|x| x.is_finite()),
+            "{name} gradient not finite: {v:?}"
+        );
+    }
+    let gl: f32 = light.grad(&grads).unwrap().into_scalar();
+    assert!(gl.is_finite() && gl > 0.0);
+}
+
+#[test]
+fn schlick_and_srgb_endpoints() {
+    let device = Device::ndarray();
+    let c = Tensor::<1>::from_data(
+        TensorData::new(vec![0.0f32, 1.0, 0.5, -0.2, 1.5], [5]),
+        &device,
+    );
+    let f: Vec<f32> = pbr::schlick(c, 0.04)
+        .into_data()
+        .convert::<f32>()
+        .into_vec()
+        .unwrap();
+    assert!((f[0] - 1.0).abs() < 1e-6 && (f[1] - 0.04).abs() < 1e-6);
+    assert!((f[2] - (0.04 + 0.96 / 32.0)).abs() < 1e-6);
+    assert!(
+        (f[3] - 1.0).abs() < 1e-6 && (f[4] - 0.04).abs() < 1e-6,
+        "clamped outside [0, 1]"
+    );
+    let x = Tensor::<1>::from_data(
+        TensorData::new(vec![0.0f32, 0.001, 0.18, 1.0, 2.0], [5]),
+        &device,
+    );
+    let s: Vec<f32> = pbr::linear_to_srgb(x)
+        .into_data()
+        .convert::<f32>()
+        .into_vec()
+        .unwrap();
+    assert!((s[0]).abs() < 1e-7 && (s[1] - 0.01292).abs() < 1e-6);
+    assert!((s[2] - 0.461_356).abs() < 1e-4, "{}", s[2]);
+    assert!((s[3] - 1.0).abs() < 1e-6 && (s[4] - 1.0).abs() < 1e-6);
+}
+
+#[test]
+fn sh_colours_match_the_host_basis() {
+    let device = Device::ndarray();
+    let mut rng = StdRng::seed_from_u64(5);
+    let n = 20;
+    let dirs: Vec<f32> = (0..n)
+        .flat_map(|_| {
+            let v: [f32; 3] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
+            let l = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+            v.map(|x| x / l)
+        })
+        .collect();
+    let dc: Vec<f32> = (0..n * 3).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let rest: Vec<f32> = (0..n * 45).map(|_| rng.random_range(-0.5..0.5)).collect();
+    let t = |v: &Vec<f32>, w| Tensor::<2>::from_data(TensorData::new(v.clone(), [n, w]), &device);
+    for degree in 0..=3u32 {
+        let got: Vec<f32> = sh::colours(&t(&dc, 3), Some(&t(&rest, 45)), &t(&dirs, 3), degree)
+            .into_data()
+            .convert::<f32>()
+            .into_vec()
+            .unwrap();
+        for i in 0..n {
+            let b = sh::basis_host(std::array::from_fn(|k| f64::from(dirs[3 * i + k])), degree);
+            for c in 0..3 {
+                let mut v = b[0] * f64::from(dc[3 * i + c]) + 0.5;
+                for (j, bj) in b.iter().enumerate().skip(1) {
+                    v += bj * f64::from(rest[i * 45 + (j - 1) * 3 + c]);
+                }
+                assert!(
+                    (f64::from(got[3 * i + c]) - v.max(0.0)).abs() < 1e-5,
+                    "degree {degree}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn ssim_and_l1_behave() {
+    let device = Device::ndarray();
+    let mut rng = StdRng::seed_from_u64(9);
+    let v: Vec<f32> = (0..24 * 20 * 3)
+        .map(|_| rng.random_range(0.0..1.0))
+        .collect();
+    let a = Tensor::<3>::from_data(TensorData::new(v.clone(), [24, 20, 3]), &device);
+    let s: f32 = losses::ssim(a.clone(), a.clone()).into_scalar();
+    assert!(
+        (s - 1.0).abs() < 1e-5,
+        "SSIM of an image with itself is {s}"
+    );
+    let b = a.clone() * 0.5 + 0.2;
+    let s2: f32 = losses::ssim(a.clone(), b.clone()).into_scalar();
+    assert!(s2 < 0.95, "SSIM {s2}");
+    let l: f32 = losses::l1(a.clone(), a.clone() + 0.1).into_scalar();
+    assert!((l - 0.1).abs() < 1e-6);
+}

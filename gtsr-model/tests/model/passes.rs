@@ -1,0 +1,61 @@
+//! Leaving components out: parameters not allocated, raster passes not run.
+
+use gtsr_model::config::Preset;
+use gtsr_model::gaussians::ParamKind;
+
+use crate::common::{device, small_config, tiny_scene, trainer};
+
+#[test]
+fn switches_change_allocations_and_pass_counts() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    // (preset, passes of a stage-1 step, passes of a stage-2 step including the neighbour)
+    let expect = [
+        (Preset::Full, 1, 4),
+        (Preset::NoPbr, 1, 3),
+        (Preset::NoFresnel, 1, 4),
+        (Preset::NoInterior, 1, 2),
+        (Preset::Pgsr, 1, 2),
+    ];
+    for (preset, s1, s2) in expect {
+        let comps = preset.components().unwrap();
+        let mut t = trainer(&scene, small_config(comps, 6), &device);
+        let r1 = t.step().unwrap();
+        assert_eq!(r1.stage, 1);
+        assert_eq!(r1.passes, s1, "{preset:?} stage 1");
+        t.step = t.config.stage2_start;
+        let r2 = t.step().unwrap();
+        assert_eq!(r2.stage, 2);
+        assert_eq!(r2.passes, s2, "{preset:?} stage 2");
+        assert_eq!(
+            t.model.interior.is_some(),
+            comps.interior,
+            "{preset:?} interior set"
+        );
+        assert_eq!(t.model.log_light.is_some(), comps.pbr, "{preset:?} light");
+        assert_eq!(
+            t.model.surface.get(ParamKind::BaseColour).is_some(),
+            comps.pbr,
+            "{preset:?} material"
+        );
+        assert!(!r2.skipped && r2.loss.is_finite());
+    }
+    // Without the multi-view term the neighbour pass goes too; SH degree 0 allocates no
+    // higher coefficients.
+    let mut comps = Preset::Full.components().unwrap();
+    comps.multi_view = false;
+    comps.sh_degree = 0;
+    let mut t = trainer(&scene, small_config(comps, 6), &device);
+    t.step = t.config.stage2_start;
+    assert_eq!(t.step().unwrap().passes, 3);
+    assert!(t.model.surface.get(ParamKind::ShRest).is_none());
+    assert!(
+        t.model
+            .interior
+            .as_ref()
+            .unwrap()
+            .get(ParamKind::ShRest)
+            .is_none()
+    );
+}

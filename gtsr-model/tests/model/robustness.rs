@@ -1,0 +1,209 @@
+//! Non-finite steps are skipped, checkpoints resume exactly, exports are readable, bad input
+//! is refused with a clear error, and `auto` explains itself.
+
+use burn::tensor::Device;
+use gtsr_model::checkpoint;
+use gtsr_model::config::{Init, Preset, SceneEvidence, auto_components};
+use gtsr_model::export::write_splat_ply;
+use gtsr_model::model::scalar_param;
+use gtsr_model::trainer::initial_points;
+use gtsr_model::views::{ViewTensors, scene_evidence};
+
+use crate::common::{device, small_config, tiny_scene, trainer, views};
+
+#[test]
+fn non_finite_steps_are_skipped_and_counted() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    let mut t = trainer(
+        &scene,
+        small_config(Preset::Full.components().unwrap(), 30),
+        &device,
+    );
+    t.step = t.config.stage2_start;
+    t.step().unwrap();
+    t.model.log_light = Some(scalar_param(f64::NAN, &device));
+    let before = t.model.surface.to_host();
+    let r = t.step().unwrap();
+    assert!(r.skipped && !r.loss.is_finite());
+    assert_eq!(t.counters.skipped_steps, 1);
+    assert_eq!(
+        t.model.surface.to_host(),
+        before,
+        "a skipped step must not touch the parameters"
+    );
+}
+
+#[test]
+fn resume_from_checkpoint_equals_uninterrupted_training() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    let cfg = small_config(Preset::Full.components().unwrap(), 36);
+    let mut a = trainer(&scene, cfg.clone(), &device);
+    for _ in 0..26 {
+        a.step().unwrap();
+    }
+    let mut b = trainer(&scene, cfg, &device);
+    for _ in 0..17 {
+        b.step().unwrap();
+    }
+    let path = dir.path().join("run.ckpt");
+    checkpoint::save(&b, &path).unwrap();
+    drop(b);
+    let mut c = checkpoint::load(&path, views(&scene, &device), &device).unwrap();
+    assert_eq!(c.step, 17);
+    for _ in 17..26 {
+        c.step().unwrap();
+    }
+    assert_eq!(a.model.surface.to_host(), c.model.surface.to_host());
+    assert_eq!(
+        a.model.interior.as_ref().unwrap().to_host(),
+        c.model.interior.as_ref().unwrap().to_host()
+    );
+    let la: f32 = a.model.log_light.clone().unwrap().into_scalar();
+    let lc: f32 = c.model.log_light.clone().unwrap().into_scalar();
+    assert_eq!(la, lc);
+    // A damaged checkpoint is refused with the file named.
+    std::fs::write(&path, b"not a checkpoint").unwrap();
+    let err = checkpoint::load(&path, views(&scene, &device), &device)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("run.ckpt"), "{err}");
+}
+
+#[test]
+fn splat_ply_has_the_3dgs_layout() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    let mut t = trainer(
+        &scene,
+        small_config(Preset::Full.components().unwrap(), 30),
+        &device,
+    );
+    t.step = t.config.stage2_start;
+    t.step().unwrap();
+    let path = dir.path().join("gaussians.ply");
+    let n = write_splat_ply(&t.model, &path).unwrap();
+    let (ns, ni) = t.model.counts();
+    assert_eq!(n, ns + ni);
+    let bytes = std::fs::read(&path).unwrap();
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .unwrap()
+        + 11;
+    let header = std::str::from_utf8(&bytes[..end]).unwrap();
+    let props: Vec<&str> = header
+        .lines()
+        .filter(|l| l.starts_with("property float "))
+        .collect();
+    // x y z, nx ny nz, 3 DC, 45 rest, opacity, 3 scales, 4 rotations, set flag.
+    assert_eq!(props.len(), 3 + 3 + 3 + 45 + 1 + 3 + 4 + 1);
+    for p in [
+        "x",
+        "f_dc_0",
+        "f_rest_44",
+        "opacity",
+        "scale_2",
+        "rot_3",
+        "gtsr_set",
+    ] {
+        assert!(
+            props.contains(&format!("property float {p}").as_str()),
+            "missing {p}"
+        );
+    }
+    assert!(header.contains(&format!("element vertex {n}")));
+    assert_eq!(bytes.len() - end, n * props.len() * 4);
+    // The last splat is interior (flag 1), the first surface (flag 0).
+    let flag = |i: usize| {
+        let o = end + (i * props.len() + props.len() - 1) * 4;
+        f32::from_le_bytes(bytes[o..o + 4].try_into().unwrap())
+    };
+    assert_eq!(flag(0), 0.0);
+    assert_eq!(flag(n - 1), 1.0);
+}
+
+#[test]
+fn bad_views_and_configs_are_refused_with_reasons() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = Device::ndarray();
+    let mut v = scene.train[0].clone();
+    v.rgb[5] = f32::NAN;
+    let e = ViewTensors::new(&v, 0, &device).unwrap_err().to_string();
+    assert!(e.contains(&v.name) && e.contains("non-finite"), "{e}");
+    let mut v = scene.train[0].clone();
+    v.rgb.pop();
+    let e = ViewTensors::new(&v, 0, &device).unwrap_err().to_string();
+    assert!(e.contains("colour values"), "{e}");
+    let mut v = scene.train[0].clone();
+    v.camera.fx = 0.0;
+    let e = ViewTensors::new(&v, 0, &device).unwrap_err().to_string();
+    assert!(e.contains("camera"), "{e}");
+    let mut cfg = small_config(Preset::Full.components().unwrap(), 10);
+    cfg.f0 = 2.0;
+    cfg.init_radius = f64::NAN;
+    let e = cfg.validate().unwrap_err();
+    assert!(e.contains("f0") && e.contains("init_radius"), "{e}");
+    let mut comps = Preset::NoPbr.components().unwrap();
+    comps.smoothness = true;
+    assert!(comps.validate().is_err());
+}
+
+#[test]
+fn auto_leaves_out_what_the_scene_does_not_need_and_says_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let ev = scene_evidence(&scene, 30.0).unwrap();
+    assert_eq!(ev.colocated_light, Some(true));
+    assert_eq!(ev.opaque, Some(false));
+    let (c, decisions) = auto_components(&ev);
+    assert!(c.pbr && c.interior, "{decisions:?}");
+    let opaque = SceneEvidence {
+        colocated_light: None,
+        opaque: Some(true),
+        background_level: Some(0.3),
+        train_views: 10,
+        views_with_neighbours: 10,
+    };
+    let (c, decisions) = auto_components(&opaque);
+    assert!(!c.pbr && !c.interior && !c.fresnel && !c.smoothness && c.multi_view);
+    let pbr = decisions.iter().find(|d| d.component == "pbr").unwrap();
+    assert!(!pbr.enabled && pbr.reason.contains("ambient"), "{pbr:?}");
+    assert!(
+        decisions
+            .iter()
+            .any(|d| d.component == "interior" && d.reason.contains("opaque"))
+    );
+}
+
+#[test]
+fn mask_carved_points_project_inside_the_masks() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    let vs = views(&scene, &device);
+    let masks: Vec<_> = vs
+        .iter()
+        .zip(&scene.train)
+        .map(|(v, s)| (v.camera.clone(), s.mask.clone()))
+        .collect();
+    let mut cfg = small_config(Preset::Full.components().unwrap(), 10);
+    cfg.init = Init::MaskCarved;
+    let pts = initial_points(&cfg, &masks).unwrap();
+    assert_eq!(pts.len(), cfg.init_surface);
+    // The sphere has radius 1: carved points lie close to it, random ones fill the ball.
+    let outside = pts
+        .iter()
+        .filter(|p| p.iter().map(|v| v * v).sum::<f32>().sqrt() > 1.15)
+        .count();
+    assert!(
+        outside < pts.len() / 20,
+        "{outside} of {} points outside the object",
+        pts.len()
+    );
+}
