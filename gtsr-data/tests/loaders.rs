@@ -13,7 +13,11 @@ use gtsr_data::{
 };
 
 fn shared_data() -> PathBuf {
-    let p = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"));
+    // Read at run time: a test binary reused from a shared target directory may have been
+    // compiled in another checkout, so the compile-time path can be stale.
+    let manifest = std::env::var("CARGO_MANIFEST_DIR")
+        .unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").to_string());
+    let p = PathBuf::from(manifest).join("../../shared/data");
     assert!(
         p.join("wax_knot").is_dir() && p.join("amber_ingot").is_dir(),
         "development data not found at {} (the shared/ folder beside the checkout; present in CI)",

@@ -1,5 +1,28 @@
-//! Evaluation: chamfer distance, F-score, normal consistency, PSNR and SSIM, and the
-//! error-against-run-time report.
+//! Evaluation for GTSR-rs: mesh metrics (chamfer distance, F-score, normal consistency),
+//! image metrics (PSNR, SSIM), TSDF fusion and marching cubes for mesh extraction, visual
+//! hulls, error-against-run-time logs and plots, and markdown result tables.
 //!
-//! Empty for now: this crate is filled by the gtsr-train / gtsr-eval issue. Nothing here
-//! pretends to work.
+//! Meshes are [`gtsr_data::ply::TriMesh`] and cameras [`gtsr_data::Camera`] (OpenCV
+//! convention). Signed fields are negative inside and positive outside; extracted meshes are
+//! welded and outward oriented. Every entry point checks its inputs and returns
+//! [`EvalError`] rather than panicking or producing NaN.
+
+#![warn(missing_docs)]
+
+pub mod error;
+pub mod hull;
+pub mod marching;
+pub mod mesh;
+pub mod metrics;
+pub mod report;
+pub mod timeline;
+pub mod tsdf;
+
+pub use error::{EvalError, Result};
+pub use hull::visual_hull;
+pub use marching::{Grid, marching_cubes};
+pub use mesh::{largest_component, sample_surface, weld};
+pub use metrics::{ImageRef, MeshMetrics, chamfer, psnr, ssim};
+pub use report::{ReportRow, markdown_table};
+pub use timeline::{Timeline, TimelinePoint, plot_png};
+pub use tsdf::{TsdfVolume, default_voxel_for_radius};

@@ -1,16 +1,106 @@
 //! `gtsr-train`: images in, mesh and numbers out.
 //!
-//! The reconstruction pipeline (model, losses, training, mesh extraction) is not implemented
-//! yet: it arrives with the gtsr-model and gtsr-train issues. Until then this binary says so
-//! and exits with status 2 rather than pretend.
+//! With no arguments it generates (or reuses) a small built-in translucent scene (a wax bear,
+//! path-traced by `gtsr-data`) and reconstructs it on the CPU. See `--help` for the options and
+//! the README for what lands in `--out`.
+
+#![allow(deprecated)] // burn-ndarray: the design card keeps it as the CPU backend.
+
+mod outputs;
+mod pipeline;
+
+use std::path::PathBuf;
+
+use clap::{Parser, ValueEnum};
+
+/// Reconstruct the surface of a translucent object from posed images (GTSR).
+#[derive(Parser, Debug, Clone)]
+#[command(version, about)]
+pub struct Args {
+    /// Dataset folder (Blender/NeRF `transforms_*.json` or COLMAP). Default: the built-in
+    /// synthetic scene, generated into `--scene-cache` on first use.
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Where the built-in scene is generated (and reused from).
+    #[arg(long, default_value = "gtsr-cache/default-scene")]
+    pub scene_cache: PathBuf,
+    /// Output folder.
+    #[arg(long, default_value = "gtsr-output")]
+    pub out: PathBuf,
+    /// Compute backend.
+    #[arg(long, value_enum, default_value_t = Backend::Ndarray)]
+    pub backend: Backend,
+    /// Training steps.
+    #[arg(long)]
+    pub iterations: Option<usize>,
+    /// Longest image side after downscaling (pixels).
+    #[arg(long)]
+    pub resolution: Option<u32>,
+    /// Component preset: full, no-pbr, no-fresnel, no-interior, pgsr, auto.
+    #[arg(long, default_value = "full")]
+    pub preset: String,
+    /// A JSON file with every training setting (as written to `config.json`); the switches
+    /// below and `--iterations` / `--seed` override it.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Leave out the interior set.
+    #[arg(long)]
+    pub no_interior: bool,
+    /// Leave out the Fresnel weighting.
+    #[arg(long)]
+    pub no_fresnel: bool,
+    /// Leave out C_PBR (and material smoothness).
+    #[arg(long)]
+    pub no_pbr: bool,
+    /// Leave out the multi-view geometric term.
+    #[arg(long)]
+    pub no_multi_view: bool,
+    /// Leave out the single-view depth-normal term.
+    #[arg(long)]
+    pub no_single_view: bool,
+    /// Largest SH degree (0-3).
+    #[arg(long)]
+    pub sh_degree: Option<u32>,
+    /// Initialisation: random (the paper) or mask-carved.
+    #[arg(long)]
+    pub init: Option<String>,
+    /// Seed of every random choice.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Continue from `--out/checkpoint.safetensors`.
+    #[arg(long)]
+    pub resume: bool,
+    /// Evaluations (test PSNR/SSIM, mesh chamfer) along the run for the error-against-time log.
+    #[arg(long, default_value_t = 10)]
+    pub eval_points: usize,
+    /// TSDF voxel size (scene units); default: the scene radius / 128.
+    #[arg(long)]
+    pub voxel: Option<f32>,
+    /// TSDF truncation (scene units); default: 4 voxels.
+    #[arg(long)]
+    pub truncation: Option<f32>,
+    /// Save a checkpoint every this many steps (0: only at the end or on Ctrl-C).
+    #[arg(long, default_value_t = 500)]
+    pub checkpoint_every: usize,
+}
+
+/// Compute backend.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Backend {
+    /// Burn's NdArray backend on the CPU.
+    Ndarray,
+    /// Burn's wgpu backend (GPU).
+    Wgpu,
+}
 
 fn main() {
-    eprintln!(
-        "gtsr-train: the reconstruction pipeline is not implemented yet.\n\
-         What exists today: the differentiable splatting kernels (crate gtsr-render-kernels):\n  \
-         cargo run --release -p gtsr-render-kernels --example render_png\n  \
-         cargo xtask stability\n  \
-         cargo bench -p gtsr-render-kernels"
-    );
-    std::process::exit(2);
+    let args = Args::parse();
+    match pipeline::run(&args) {
+        Ok(pipeline::Outcome::Finished) => {}
+        Ok(pipeline::Outcome::Interrupted) => std::process::exit(130),
+        Err(e) => {
+            eprintln!("gtsr-train: error: {e:#}");
+            std::process::exit(1);
+        }
+    }
 }

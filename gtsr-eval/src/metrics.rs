@@ -1,0 +1,393 @@
+//! Surface and image metrics: chamfer distance, accuracy / completeness, precision / recall /
+//! F-score, normal consistency, PSNR and SSIM.
+//!
+//! # Mesh metrics
+//!
+//! `samples` points are drawn area-uniformly on each mesh (seeded, see
+//! [`crate::mesh::sample_surface`]); each sample's distance to the *other mesh* is the exact
+//! Euclidean distance to its closest triangle (parry3d BVH, not a nearest-sample search).
+//! `chamfer = (accuracy + completeness) / 2` with `accuracy` the mean predicted-to-ground-truth
+//! distance and `completeness` the mean ground-truth-to-predicted distance.
+//!
+//! # Image metrics
+//!
+//! Images are [`ImageRef`]s of `f32` values in `[0, 1]`, interleaved channels. Masks hold
+//! one value per pixel; a pixel is selected when `mask > 0.5`.
+//! SSIM follows 3DGS (`utils/loss_utils.py`) and pytorch-msssim's defaults: an 11x11 Gaussian
+//! window with sigma 1.5 (normalised to sum 1), applied per channel as a separable blur with
+//! **zero padding** (same-size output, like `conv2d(padding=5)`), `C1 = 0.01^2`,
+//! `C2 = 0.03^2`, and the mean of the SSIM map over all pixels and channels (over the
+//! selected pixels when masked).
+
+use glam::Vec3;
+use gtsr_data::ply::TriMesh;
+use parry3d::query::PointQueryWithLocation;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{EvalError, Result};
+use crate::mesh::{face_normal_scaled, sample_surface, validate};
+
+/// Mesh-to-mesh metrics (distances in mesh units).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MeshMetrics {
+    /// `(accuracy + completeness) / 2`.
+    pub chamfer: f64,
+    /// Mean distance from predicted samples to the ground-truth mesh.
+    pub accuracy: f64,
+    /// Mean distance from ground-truth samples to the predicted mesh.
+    pub completeness: f64,
+    /// Fraction of predicted samples within `threshold` of the ground truth.
+    pub precision: f64,
+    /// Fraction of ground-truth samples within `threshold` of the prediction.
+    pub recall: f64,
+    /// Harmonic mean of precision and recall (0 when both are 0).
+    pub fscore: f64,
+    /// Mean over both directions of `|n_sample . n_closest_triangle|` (1 = perfect).
+    pub normal_consistency: f64,
+    /// The F-score distance threshold used.
+    pub threshold: f64,
+    /// Samples drawn on each mesh.
+    pub samples: usize,
+}
+
+/// A mesh prepared for exact closest-point queries.
+struct Target<'a> {
+    mesh: &'a TriMesh,
+    bvh: parry3d::shape::TriMesh,
+    /// Original triangle index of each triangle kept in `bvh`.
+    original: Vec<u32>,
+}
+
+impl<'a> Target<'a> {
+    fn new(mesh: &'a TriMesh, what: &str) -> Result<Self> {
+        validate(mesh, what)?;
+        let mut original = Vec::with_capacity(mesh.triangles.len());
+        let mut tris = Vec::with_capacity(mesh.triangles.len());
+        for (k, &t) in mesh.triangles.iter().enumerate() {
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            let scale = (b - a)
+                .length_squared()
+                .max((c - b).length_squared())
+                .max((a - c).length_squared());
+            let n2 = (b - a).cross(c - a).length_squared();
+            // Drop degenerate (zero-area) triangles: they add no surface.
+            if n2.is_finite() && n2 > 1e-14 * scale * scale {
+                original.push(k as u32);
+                tris.push(t);
+            }
+        }
+        if tris.is_empty() {
+            return Err(EvalError::EmptyMesh {
+                what: what.to_string(),
+            });
+        }
+        let verts = mesh
+            .positions
+            .iter()
+            .map(|p| parry3d::math::Vector::new(p.x, p.y, p.z))
+            .collect();
+        let bvh =
+            parry3d::shape::TriMesh::new(verts, tris).map_err(|e| EvalError::InvalidMesh {
+                what: what.to_string(),
+                message: e.to_string(),
+            })?;
+        Ok(Target {
+            mesh,
+            bvh,
+            original,
+        })
+    }
+
+    /// Exact distance from `p` to the mesh and the unit normal of the closest triangle.
+    fn closest(&self, p: Vec3) -> (f32, Vec3) {
+        let q = parry3d::math::Vector::new(p.x, p.y, p.z);
+        let (proj, (tri, _)) = self.bvh.project_local_point_and_get_location(q, false);
+        let d = Vec3::new(proj.point.x - p.x, proj.point.y - p.y, proj.point.z - p.z).length();
+        let t = self.mesh.triangles[self.original[tri as usize] as usize];
+        (d, face_normal_scaled(self.mesh, t).normalize_or_zero())
+    }
+}
+
+/// One direction: (mean distance, fraction within threshold, mean |cos|).
+fn one_way(
+    samples: &crate::mesh::SurfaceSamples,
+    target: &Target,
+    threshold: f32,
+    what: &str,
+) -> Result<(f64, f64, f64)> {
+    let (sum_d, hits, sum_n, bad) = samples
+        .points
+        .par_iter()
+        .zip(&samples.normals)
+        .map(|(&p, &n)| {
+            let (d, tn) = target.closest(p);
+            if !d.is_finite() {
+                return (0.0, 0usize, 0.0, 1usize);
+            }
+            (
+                d as f64,
+                (d <= threshold) as usize,
+                n.dot(tn).abs() as f64,
+                0,
+            )
+        })
+        .reduce(
+            || (0.0, 0, 0.0, 0),
+            |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2, a.3 + b.3),
+        );
+    if bad > 0 {
+        return Err(EvalError::NonFinite {
+            what: format!("{bad} closest-point distances from {what} samples"),
+        });
+    }
+    let n = samples.points.len() as f64;
+    Ok((sum_d / n, hits as f64 / n, sum_n / n))
+}
+
+/// Chamfer distance, F-score at `threshold` and normal consistency between a predicted and a
+/// ground-truth mesh, from `samples` area-uniform samples per mesh drawn with `seed` (see the
+/// module documentation). Errors on empty or invalid meshes and on `samples == 0` or a
+/// non-positive threshold. Parallel (rayon).
+pub fn chamfer(
+    pred: &TriMesh,
+    gt: &TriMesh,
+    samples: usize,
+    threshold: f32,
+    seed: u64,
+) -> Result<MeshMetrics> {
+    if samples == 0 {
+        return Err(EvalError::InvalidArgument(
+            "chamfer needs at least one sample".into(),
+        ));
+    }
+    if !(threshold > 0.0 && threshold.is_finite()) {
+        return Err(EvalError::InvalidArgument(format!(
+            "F-score threshold {threshold} must be positive and finite"
+        )));
+    }
+    let (pred_target, gt_target) = rayon::join(
+        || Target::new(pred, "predicted"),
+        || Target::new(gt, "ground-truth"),
+    );
+    let (pred_target, gt_target) = (pred_target?, gt_target?);
+    let pred_samples = sample_surface(pred, samples, seed, "predicted")?;
+    let gt_samples = sample_surface(gt, samples, seed ^ 0x5eed_0f67, "ground-truth")?;
+    let (accuracy, precision, nc_pred) =
+        one_way(&pred_samples, &gt_target, threshold, "predicted")?;
+    let (completeness, recall, nc_gt) =
+        one_way(&gt_samples, &pred_target, threshold, "ground-truth")?;
+    let fscore = if precision + recall > 0.0 {
+        2.0 * precision * recall / (precision + recall)
+    } else {
+        0.0
+    };
+    Ok(MeshMetrics {
+        chamfer: 0.5 * (accuracy + completeness),
+        accuracy,
+        completeness,
+        precision,
+        recall,
+        fscore,
+        normal_consistency: 0.5 * (nc_pred + nc_gt),
+        threshold: threshold as f64,
+        samples,
+    })
+}
+
+/// A borrowed image: `width * height * channels` values, row-major, channels interleaved.
+#[derive(Clone, Copy, Debug)]
+pub struct ImageRef<'a> {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// Channels per pixel.
+    pub channels: usize,
+    /// The values.
+    pub data: &'a [f32],
+}
+
+impl<'a> ImageRef<'a> {
+    /// A view of `data` as a `width x height` image with `channels` channels.
+    pub fn new(width: usize, height: usize, channels: usize, data: &'a [f32]) -> Self {
+        ImageRef {
+            width,
+            height,
+            channels,
+            data,
+        }
+    }
+
+    /// The RGB values of a decoded [`gtsr_data::Image`].
+    pub fn rgb(image: &'a gtsr_data::Image) -> Self {
+        ImageRef::new(image.width as usize, image.height as usize, 3, &image.rgb)
+    }
+
+    fn check(&self, what: &str) -> Result<()> {
+        let n = self.width * self.height * self.channels;
+        if n == 0 || self.data.len() != n {
+            return Err(EvalError::size(
+                what,
+                format!(
+                    "{}x{}x{} = {n} values (non-zero)",
+                    self.width, self.height, self.channels
+                ),
+                self.data.len(),
+            ));
+        }
+        if self.data.iter().any(|v| !v.is_finite()) {
+            return Err(EvalError::NonFinite {
+                what: what.to_string(),
+            });
+        }
+        Ok(())
+    }
+}
+
+fn check_pair(pred: &ImageRef, gt: &ImageRef, mask: Option<&[f32]>) -> Result<()> {
+    pred.check("predicted image")?;
+    gt.check("ground-truth image")?;
+    if (pred.width, pred.height, pred.channels) != (gt.width, gt.height, gt.channels) {
+        return Err(EvalError::size(
+            "predicted image",
+            format!(
+                "{}x{}x{} (as the ground truth)",
+                gt.width, gt.height, gt.channels
+            ),
+            format!("{}x{}x{}", pred.width, pred.height, pred.channels),
+        ));
+    }
+    if let Some(m) = mask {
+        if m.len() != gt.width * gt.height {
+            return Err(EvalError::size(
+                "mask",
+                format!("{}x{} = {}", gt.width, gt.height, gt.width * gt.height),
+                m.len(),
+            ));
+        }
+        if !m.iter().any(|&v| v > 0.5) {
+            return Err(EvalError::EmptyMask);
+        }
+    }
+    Ok(())
+}
+
+/// Peak signal-to-noise ratio in dB for `[0, 1]` images: `-10 log10(MSE)`, the mean over all
+/// channels of the pixels selected by `mask` (all pixels without one). Identical images give
+/// `+inf`. Errors on size mismatches, non-finite values and empty masks.
+pub fn psnr(pred: ImageRef, gt: ImageRef, mask: Option<&[f32]>) -> Result<f64> {
+    check_pair(&pred, &gt, mask)?;
+    let c = gt.channels;
+    let (sum, count) = pred
+        .data
+        .par_chunks(c)
+        .zip(gt.data.par_chunks(c))
+        .enumerate()
+        .filter(|(i, _)| mask.is_none_or(|m| m[*i] > 0.5))
+        .map(|(_, (a, b))| {
+            let s: f64 = a
+                .iter()
+                .zip(b)
+                .map(|(&x, &y)| ((x - y) as f64).powi(2))
+                .sum();
+            (s, c)
+        })
+        .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let mse = sum / count as f64;
+    Ok(-10.0 * mse.log10())
+}
+
+/// The normalised 1-D Gaussian window: 11 taps, sigma 1.5.
+fn gaussian_window() -> [f64; 11] {
+    let mut w = [0.0; 11];
+    for (k, v) in w.iter_mut().enumerate() {
+        let x = k as f64 - 5.0;
+        *v = (-x * x / (2.0 * 1.5 * 1.5)).exp();
+    }
+    let s: f64 = w.iter().sum();
+    w.map(|v| v / s)
+}
+
+/// Separable Gaussian blur with zero padding (same size).
+fn blur(img: &[f64], w: usize, h: usize, win: &[f64; 11]) -> Vec<f64> {
+    let mut tmp = vec![0.0; w * h];
+    tmp.par_chunks_mut(w).enumerate().for_each(|(j, row)| {
+        for (i, out) in row.iter_mut().enumerate() {
+            let mut s = 0.0;
+            for (k, &wk) in win.iter().enumerate() {
+                let x = i as isize + k as isize - 5;
+                if x >= 0 && (x as usize) < w {
+                    s += wk * img[j * w + x as usize];
+                }
+            }
+            *out = s;
+        }
+    });
+    let mut out = vec![0.0; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(j, row)| {
+        for (k, &wk) in win.iter().enumerate() {
+            let y = j as isize + k as isize - 5;
+            if y >= 0 && (y as usize) < h {
+                let src = &tmp[y as usize * w..(y as usize + 1) * w];
+                for (o, &s) in row.iter_mut().zip(src) {
+                    *o += wk * s;
+                }
+            }
+        }
+    });
+    out
+}
+
+/// The SSIM map of one channel.
+fn ssim_map(x: &[f64], y: &[f64], w: usize, h: usize) -> Vec<f64> {
+    const C1: f64 = 0.01 * 0.01;
+    const C2: f64 = 0.03 * 0.03;
+    let win = gaussian_window();
+    let mu_x = blur(x, w, h, &win);
+    let mu_y = blur(y, w, h, &win);
+    let xx: Vec<f64> = x.iter().map(|v| v * v).collect();
+    let yy: Vec<f64> = y.iter().map(|v| v * v).collect();
+    let xy: Vec<f64> = x.iter().zip(y).map(|(a, b)| a * b).collect();
+    let (sxx, syy, sxy) = (
+        blur(&xx, w, h, &win),
+        blur(&yy, w, h, &win),
+        blur(&xy, w, h, &win),
+    );
+    (0..w * h)
+        .map(|i| {
+            let (mx, my) = (mu_x[i], mu_y[i]);
+            let vx = sxx[i] - mx * mx;
+            let vy = syy[i] - my * my;
+            let cov = sxy[i] - mx * my;
+            ((2.0 * mx * my + C1) * (2.0 * cov + C2)) / ((mx * mx + my * my + C1) * (vx + vy + C2))
+        })
+        .collect()
+}
+
+/// Structural similarity (see the module documentation for the exact definition: 3DGS's
+/// zero-padded 11x11 Gaussian window). With a mask, the mean of the SSIM map over the
+/// selected pixels (the window still sees the whole image). Identical images give exactly 1.
+/// Errors on size mismatches, non-finite values and empty masks.
+pub fn ssim(pred: ImageRef, gt: ImageRef, mask: Option<&[f32]>) -> Result<f64> {
+    check_pair(&pred, &gt, mask)?;
+    let (w, h, c) = (gt.width, gt.height, gt.channels);
+    let channel = |img: &ImageRef, ch: usize| -> Vec<f64> {
+        img.data
+            .iter()
+            .skip(ch)
+            .step_by(c)
+            .map(|&v| v as f64)
+            .collect()
+    };
+    let (sum, count) = (0..c)
+        .map(|ch| {
+            let map = ssim_map(&channel(&pred, ch), &channel(&gt, ch), w, h);
+            map.iter()
+                .enumerate()
+                .filter(|(i, _)| mask.is_none_or(|m| m[*i] > 0.5))
+                .fold((0.0, 0usize), |(s, n), (_, v)| (s + v, n + 1))
+        })
+        .fold((0.0, 0usize), |a, b| (a.0 + b.0, a.1 + b.1));
+    Ok(sum / count as f64)
+}

@@ -1,0 +1,80 @@
+//! Markdown result tables.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Result, write_atomic};
+
+/// One row of a results table; missing values print as `-`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ReportRow {
+    /// Method name.
+    pub method: String,
+    /// Scene name.
+    pub scene: String,
+    /// Chamfer distance (mesh units; printed times 1e3).
+    pub chamfer: Option<f64>,
+    /// F-score in `[0, 1]`.
+    pub fscore: Option<f64>,
+    /// PSNR in dB.
+    pub psnr: Option<f64>,
+    /// SSIM.
+    pub ssim: Option<f64>,
+    /// Wall time in seconds.
+    pub wall_seconds: Option<f64>,
+    /// Number of Gaussians.
+    pub gaussians: Option<u64>,
+}
+
+fn cell(s: &str) -> String {
+    s.replace('|', "\\|").replace('\n', " ")
+}
+
+fn opt(v: Option<f64>, f: impl Fn(f64) -> String) -> String {
+    match v {
+        Some(v) if v.is_finite() => f(v),
+        Some(v) if v == f64::INFINITY => "inf".into(),
+        _ => "-".into(),
+    }
+}
+
+/// Wall time as `h:mm:ss` (or `m:ss` under an hour).
+pub fn format_duration(seconds: f64) -> String {
+    let s = seconds.max(0.0).round() as u64;
+    if s >= 3600 {
+        format!("{}:{:02}:{:02}", s / 3600, (s / 60) % 60, s % 60)
+    } else {
+        format!("{}:{:02}", s / 60, s % 60)
+    }
+}
+
+/// A GitHub-flavoured markdown table: method, scene, chamfer x 1e3 (2 decimals), F-score
+/// (3), PSNR (2), SSIM (4), wall time (`h:mm:ss`), Gaussians.
+pub fn markdown_table(rows: &[ReportRow]) -> String {
+    let mut s = String::from(
+        "| method | scene | chamfer x1e3 | F-score | PSNR | SSIM | wall time | Gaussians |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for r in rows {
+        s.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            cell(&r.method),
+            cell(&r.scene),
+            opt(r.chamfer, |v| format!("{:.2}", v * 1e3)),
+            opt(r.fscore, |v| format!("{v:.3}")),
+            opt(r.psnr, |v| format!("{v:.2}")),
+            opt(r.ssim, |v| format!("{v:.4}")),
+            opt(r.wall_seconds, format_duration),
+            r.gaussians
+                .map(|g| g.to_string())
+                .unwrap_or_else(|| "-".into()),
+        ));
+    }
+    s
+}
+
+/// Writes [`markdown_table`] to `path` atomically.
+pub fn write_markdown(path: &Path, rows: &[ReportRow]) -> Result<()> {
+    write_atomic(path, markdown_table(rows).as_bytes())
+}

@@ -1,0 +1,324 @@
+//! Error against run time: a log of evaluation points during training, written as CSV and
+//! plotted as PNG (PSNR against training time, and chamfer against training time when any
+//! point has one).
+
+use std::path::Path;
+
+use plotters::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{EvalError, Result, write_atomic};
+
+/// One evaluation during a run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TimelinePoint {
+    /// Training iteration at which the evaluation was made.
+    pub iteration: u64,
+    /// Training wall time so far in seconds (excluding evaluation time).
+    pub train_seconds: f64,
+    /// Mean PSNR (dB) over the evaluation views.
+    pub psnr: f64,
+    /// Mean SSIM over the evaluation views.
+    pub ssim: f64,
+    /// Chamfer distance of the extracted mesh, when one was extracted.
+    pub chamfer: Option<f64>,
+    /// Number of Gaussians.
+    pub gaussians: u64,
+    /// Free-form label (for example the method or the evaluation split).
+    pub label: String,
+}
+
+/// An error-against-run-time log.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Timeline {
+    /// The points, in the order they were recorded.
+    pub points: Vec<TimelinePoint>,
+}
+
+/// The CSV header [`Timeline::write_csv`] writes and [`Timeline::read_csv`] expects.
+pub const CSV_HEADER: &str = "iteration,train_seconds,psnr,ssim,chamfer,gaussians,label";
+
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+/// Splits one CSV line (RFC 4180 quoting, no embedded newlines).
+fn split_csv(line: &str) -> Option<Vec<String>> {
+    let mut fields = Vec::new();
+    let mut cur = String::new();
+    let mut chars = line.chars().peekable();
+    let mut quoted = false;
+    while let Some(ch) = chars.next() {
+        match (quoted, ch) {
+            (true, '"') if chars.peek() == Some(&'"') => {
+                chars.next();
+                cur.push('"');
+            }
+            (true, '"') => quoted = false,
+            (false, '"') if cur.is_empty() => quoted = true,
+            (false, ',') => fields.push(std::mem::take(&mut cur)),
+            (_, c) => cur.push(c),
+        }
+    }
+    if quoted {
+        return None;
+    }
+    fields.push(cur);
+    Some(fields)
+}
+
+impl Timeline {
+    /// An empty timeline.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Appends a point.
+    pub fn push(&mut self, point: TimelinePoint) {
+        self.points.push(point);
+    }
+
+    /// The CSV text: [`CSV_HEADER`], then one line per point; floats in Rust's shortest
+    /// round-trip form, a missing chamfer as an empty field, the label quoted when needed.
+    pub fn to_csv(&self) -> String {
+        let mut s = String::from(CSV_HEADER);
+        s.push('\n');
+        for p in &self.points {
+            s.push_str(&format!(
+                "{},{},{},{},{},{},{}\n",
+                p.iteration,
+                p.train_seconds,
+                p.psnr,
+                p.ssim,
+                p.chamfer.map(|c| c.to_string()).unwrap_or_default(),
+                p.gaussians,
+                csv_field(&p.label)
+            ));
+        }
+        s
+    }
+
+    /// Writes [`Timeline::to_csv`] to `path` atomically (temporary file, then rename).
+    pub fn write_csv(&self, path: &Path) -> Result<()> {
+        write_atomic(path, self.to_csv().as_bytes())
+    }
+
+    /// Reads a file written by [`Timeline::write_csv`]. Errors name the file and line.
+    pub fn read_csv(path: &Path) -> Result<Timeline> {
+        let text = std::fs::read_to_string(path).map_err(|e| EvalError::io(path, e))?;
+        let err = |line: usize, message: String| EvalError::Parse {
+            path: path.to_path_buf(),
+            message: format!("line {line}: {message}"),
+        };
+        let mut lines = text.lines().enumerate();
+        match lines.next() {
+            Some((_, h)) if h.trim_end() == CSV_HEADER => {}
+            _ => return Err(err(1, format!("expected header `{CSV_HEADER}`"))),
+        }
+        let mut points = Vec::new();
+        for (k, line) in lines {
+            if line.trim().is_empty() {
+                continue;
+            }
+            let f = split_csv(line).ok_or_else(|| err(k + 1, "unterminated quote".into()))?;
+            if f.len() != 7 {
+                return Err(err(k + 1, format!("expected 7 fields, found {}", f.len())));
+            }
+            let num = |i: usize, name: &str| -> Result<f64> {
+                f[i].trim()
+                    .parse::<f64>()
+                    .map_err(|e| err(k + 1, format!("{name} `{}`: {e}", f[i])))
+            };
+            let int = |i: usize, name: &str| -> Result<u64> {
+                f[i].trim()
+                    .parse::<u64>()
+                    .map_err(|e| err(k + 1, format!("{name} `{}`: {e}", f[i])))
+            };
+            points.push(TimelinePoint {
+                iteration: int(0, "iteration")?,
+                train_seconds: num(1, "train_seconds")?,
+                psnr: num(2, "psnr")?,
+                ssim: num(3, "ssim")?,
+                chamfer: if f[4].trim().is_empty() {
+                    None
+                } else {
+                    Some(num(4, "chamfer")?)
+                },
+                gaussians: int(5, "gaussians")?,
+                label: f[6].clone(),
+            });
+        }
+        Ok(Timeline { points })
+    }
+}
+
+static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+
+fn ensure_font() -> std::result::Result<(), String> {
+    static REGISTERED: std::sync::OnceLock<std::result::Result<(), String>> =
+        std::sync::OnceLock::new();
+    REGISTERED
+        .get_or_init(|| {
+            plotters::style::register_font("sans-serif", FontStyle::Normal, FONT)
+                .map_err(|_| "the bundled DejaVuSans font failed to load".to_string())
+        })
+        .clone()
+}
+
+/// Padded `[lo, hi]` of finite values (a unit range around a single value).
+fn range_of(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+            (l.min(v), h.max(v))
+        });
+    if lo > hi {
+        return None;
+    }
+    let pad = if hi > lo {
+        0.05 * (hi - lo)
+    } else {
+        0.5 * lo.abs().max(1.0)
+    };
+    Some((lo - pad, hi + pad))
+}
+
+/// Plot size in pixels.
+const PLOT_SIZE: (u32, u32) = (1400, 560);
+
+/// Draws PSNR against training time (left panel) and, when any point has a chamfer
+/// distance, chamfer against training time on a log axis (right panel), one line per
+/// series with a legend, and writes the PNG to `path` atomically. Errors when no series has
+/// a point.
+pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
+    let plot_err = |message: String| EvalError::Plot {
+        path: path.to_path_buf(),
+        message,
+    };
+    ensure_font().map_err(plot_err)?;
+    let all = || series.iter().flat_map(|(_, t)| t.points.iter());
+    if all().next().is_none() {
+        return Err(plot_err("no timeline has any point".into()));
+    }
+    let (t0, t1) = range_of(all().map(|p| p.train_seconds))
+        .ok_or_else(|| plot_err("no finite training time".into()))?;
+    let t0 = t0.max(0.0).min(t1 - 1e-9);
+    let psnr_range = range_of(all().map(|p| p.psnr)).unwrap_or((0.0, 1.0));
+    let chamfers: Vec<f64> = all()
+        .filter_map(|p| p.chamfer)
+        .filter(|c| c.is_finite() && *c > 0.0)
+        .collect();
+    let (w, h) = PLOT_SIZE;
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| plot_err(e.to_string()))?;
+        let panels: Vec<_> = if chamfers.is_empty() {
+            vec![root.clone()]
+        } else {
+            root.split_evenly((1, 2))
+        };
+        let colour = |k: usize| Palette99::pick(k).to_rgba();
+        {
+            let mut chart = ChartBuilder::on(&panels[0])
+                .caption("PSNR vs training time", ("sans-serif", 24))
+                .margin(16)
+                .x_label_area_size(48)
+                .y_label_area_size(64)
+                .build_cartesian_2d(t0..t1, psnr_range.0..psnr_range.1)
+                .map_err(|e| plot_err(e.to_string()))?;
+            chart
+                .configure_mesh()
+                .x_desc("training time (s)")
+                .y_desc("PSNR (dB)")
+                .label_style(("sans-serif", 16))
+                .draw()
+                .map_err(|e| plot_err(e.to_string()))?;
+            for (k, (name, t)) in series.iter().enumerate() {
+                let c = colour(k);
+                chart
+                    .draw_series(LineSeries::new(
+                        t.points
+                            .iter()
+                            .filter(|p| p.psnr.is_finite() && p.train_seconds.is_finite())
+                            .map(|p| (p.train_seconds, p.psnr)),
+                        c.stroke_width(2),
+                    ))
+                    .map_err(|e| plot_err(e.to_string()))?
+                    .label(name.to_string())
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
+                    });
+            }
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .label_font(("sans-serif", 16))
+                .position(SeriesLabelPosition::LowerRight)
+                .draw()
+                .map_err(|e| plot_err(e.to_string()))?;
+        }
+        if !chamfers.is_empty() {
+            let lo = chamfers.iter().cloned().fold(f64::INFINITY, f64::min);
+            let hi = chamfers.iter().cloned().fold(0.0, f64::max);
+            let (lo, hi) = (lo / 1.25, hi * 1.25);
+            let mut chart = ChartBuilder::on(&panels[1])
+                .caption("Chamfer vs training time", ("sans-serif", 24))
+                .margin(16)
+                .x_label_area_size(48)
+                .y_label_area_size(80)
+                .build_cartesian_2d(t0..t1, (lo..hi).log_scale())
+                .map_err(|e| plot_err(e.to_string()))?;
+            chart
+                .configure_mesh()
+                .x_desc("training time (s)")
+                .y_desc("chamfer distance")
+                .y_label_formatter(&|v| format!("{v:.1e}"))
+                .label_style(("sans-serif", 16))
+                .draw()
+                .map_err(|e| plot_err(e.to_string()))?;
+            for (k, (name, t)) in series.iter().enumerate() {
+                let c = colour(k);
+                let pts: Vec<(f64, f64)> = t
+                    .points
+                    .iter()
+                    .filter_map(|p| Some((p.train_seconds, p.chamfer?)))
+                    .filter(|(s, c)| s.is_finite() && c.is_finite() && *c > 0.0)
+                    .collect();
+                if pts.is_empty() {
+                    continue;
+                }
+                chart
+                    .draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(2)))
+                    .map_err(|e| plot_err(e.to_string()))?
+                    .label(name.to_string())
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
+                    });
+                chart
+                    .draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
+                    .map_err(|e| plot_err(e.to_string()))?;
+            }
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .label_font(("sans-serif", 16))
+                .position(SeriesLabelPosition::UpperRight)
+                .draw()
+                .map_err(|e| plot_err(e.to_string()))?;
+        }
+        root.present().map_err(|e| plot_err(e.to_string()))?;
+    }
+    let img = image::RgbImage::from_raw(w, h, buf)
+        .ok_or_else(|| plot_err("plot buffer has the wrong size".into()))?;
+    let mut png = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .map_err(|e| plot_err(e.to_string()))?;
+    write_atomic(path, &png)
+}

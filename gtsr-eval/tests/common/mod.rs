@@ -1,0 +1,45 @@
+//! Shared test helpers: cameras around a sphere and analytic depth maps / masks.
+#![allow(dead_code)]
+
+use glam::Vec3;
+use gtsr_data::Camera;
+
+/// `n` cameras on a Fibonacci sphere of radius `distance` around `target`, looking at it.
+pub fn cameras_around(target: Vec3, distance: f32, n: usize, fov_x: f32, size: u32) -> Vec<Camera> {
+    let golden = std::f32::consts::PI * (3.0 - 5.0f32.sqrt());
+    (0..n)
+        .map(|k| {
+            let y = 1.0 - 2.0 * (k as f32 + 0.5) / n as f32;
+            let r = (1.0 - y * y).sqrt();
+            let phi = golden * k as f32;
+            let dir = Vec3::new(r * phi.cos(), y, r * phi.sin());
+            let up = if dir.y.abs() > 0.9 { Vec3::X } else { Vec3::Y };
+            Camera::look_at(target + dir * distance, target, up, fov_x, size, size)
+        })
+        .collect()
+}
+
+/// Z-depth (0 where the ray misses) and mask (1 on the sphere) of a sphere, per pixel centre.
+pub fn render_sphere(cam: &Camera, centre: Vec3, radius: f32) -> (Vec<f32>, Vec<f32>) {
+    let c = cam.world_to_camera.transform_point3(centre);
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let mut depth = vec![0.0; w * h];
+    let mut mask = vec![0.0; w * h];
+    for j in 0..h {
+        for i in 0..w {
+            // Camera-space ray s * d with d.z = 1, so s is the z-depth.
+            let d = cam.camera_direction(i as f32 + 0.5, j as f32 + 0.5);
+            let a = d.length_squared();
+            let b = d.dot(c);
+            let disc = b * b - a * (c.length_squared() - radius * radius);
+            if disc >= 0.0 {
+                let s = (b - disc.sqrt()) / a;
+                if s > 0.0 {
+                    depth[j * w + i] = s;
+                    mask[j * w + i] = 1.0;
+                }
+            }
+        }
+    }
+    (depth, mask)
+}

@@ -1,0 +1,204 @@
+use glam::Vec3;
+use gtsr_data::ply::TriMesh;
+use gtsr_eval::mesh::{component_sizes, icosphere, is_closed, sample_surface, surface_area};
+use gtsr_eval::{EvalError, chamfer, largest_component, weld};
+
+#[test]
+fn icosphere_is_closed_outward_and_close_to_the_sphere() {
+    let r = 0.7;
+    let m = icosphere(Vec3::new(0.1, -0.2, 0.3), r, 4);
+    assert_eq!(m.triangles.len(), 20 * 4usize.pow(4));
+    assert!(is_closed(&m));
+    assert_eq!(component_sizes(&m), vec![m.triangles.len()]);
+    let v = m.volume() as f64;
+    let exact = 4.0 / 3.0 * std::f64::consts::PI * (r as f64).powi(3);
+    assert!(
+        v > 0.0 && (v - exact).abs() / exact < 0.01,
+        "volume {v} vs {exact}"
+    );
+}
+
+#[test]
+fn sampling_is_seeded_area_uniform_and_on_the_surface() {
+    // Two triangles of area 1 and 3: about a quarter of the samples on the first.
+    let m = TriMesh {
+        positions: vec![
+            Vec3::ZERO,
+            Vec3::new(2.0, 0.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(0.0, 0.0, 5.0),
+            Vec3::new(3.0, 0.0, 5.0),
+            Vec3::new(0.0, 2.0, 5.0),
+        ],
+        triangles: vec![[0, 1, 2], [3, 4, 5]],
+    };
+    assert!((surface_area(&m) - 4.0).abs() < 1e-9);
+    let a = sample_surface(&m, 40_000, 7, "test").unwrap();
+    let b = sample_surface(&m, 40_000, 7, "test").unwrap();
+    let c = sample_surface(&m, 40_000, 8, "test").unwrap();
+    assert_eq!(a.points, b.points);
+    assert_ne!(a.points, c.points);
+    let first = a.triangles.iter().filter(|&&t| t == 0).count() as f64 / 40_000.0;
+    assert!(
+        (first - 0.25).abs() < 0.01,
+        "fraction on the small triangle {first}"
+    );
+    for (p, &t) in a.points.iter().zip(&a.triangles) {
+        if t == 0 {
+            assert!(p.z == 0.0 && p.x >= 0.0 && p.y >= 0.0 && p.x / 2.0 + p.y <= 1.0 + 1e-6);
+        } else {
+            assert!((p.z - 5.0).abs() < 1e-6 && p.x / 3.0 + p.y / 2.0 <= 1.0 + 1e-6);
+        }
+    }
+    // Uniform within a triangle: mean of the samples is the centroid.
+    let mean = a
+        .points
+        .iter()
+        .zip(&a.triangles)
+        .filter(|(_, t)| **t == 1)
+        .fold(Vec3::ZERO, |s, (p, _)| s + *p)
+        / a.triangles.iter().filter(|&&t| t == 1).count() as f32;
+    assert!(
+        (mean - Vec3::new(1.0, 2.0 / 3.0, 5.0)).length() < 0.02,
+        "mean {mean}"
+    );
+}
+
+#[test]
+fn mesh_against_itself_has_zero_chamfer() {
+    let m = icosphere(Vec3::ZERO, 1.0, 3);
+    let r = chamfer(&m, &m, 20_000, 1e-3, 1).unwrap();
+    assert!(r.chamfer < 1e-6, "{r:?}");
+    assert_eq!(r.fscore, 1.0);
+    assert!((r.normal_consistency - 1.0).abs() < 1e-6);
+}
+
+#[test]
+fn concentric_spheres_have_chamfer_close_to_the_radius_gap() {
+    let (r1, r2) = (1.0f32, 1.1f32);
+    let a = icosphere(Vec3::ZERO, r1, 5);
+    let b = icosphere(Vec3::ZERO, r2, 5);
+    let m = chamfer(&a, &b, 50_000, 0.05, 3).unwrap();
+    // Faces sag inside the sphere by at most r (1 - cos(edge / 2r)) ~ 1.5e-4 r here; the
+    // spheres have the same tessellation, so the gap is scaled by up to that much.
+    assert!((m.chamfer - 0.1).abs() < 1e-3, "{m:?}");
+    assert!((m.accuracy - 0.1).abs() < 1e-3 && (m.completeness - 0.1).abs() < 1e-3);
+    assert_eq!(m.fscore, 0.0);
+    let m = chamfer(&a, &b, 50_000, 0.2, 3).unwrap();
+    assert_eq!(m.fscore, 1.0);
+    assert!(m.normal_consistency > 0.99);
+}
+
+#[test]
+fn chamfer_is_asymmetric_for_a_partial_prediction() {
+    // Prediction = the upper half of the ground-truth sphere: accuracy ~0, completeness > 0.
+    let gt = icosphere(Vec3::ZERO, 1.0, 4);
+    let pred = TriMesh {
+        positions: gt.positions.clone(),
+        triangles: gt
+            .triangles
+            .iter()
+            .copied()
+            .filter(|t| t.iter().all(|&i| gt.positions[i as usize].z > 0.0))
+            .collect(),
+    };
+    let m = chamfer(&pred, &gt, 20_000, 0.01, 5).unwrap();
+    assert!(m.accuracy < 1e-6, "{m:?}");
+    assert!(m.completeness > 0.2, "{m:?}");
+    assert!(
+        m.precision == 1.0 && m.recall < 0.6 && m.recall > 0.4,
+        "{m:?}"
+    );
+}
+
+#[test]
+fn largest_component_drops_a_small_blob_and_welds_soup() {
+    let big = icosphere(Vec3::ZERO, 1.0, 3);
+    let small = icosphere(Vec3::new(3.0, 0.0, 0.0), 0.2, 1);
+    // Triangle soup: every triangle has its own three vertices.
+    let mut soup = TriMesh::default();
+    for m in [&small, &big] {
+        for t in &m.triangles {
+            let base = soup.positions.len() as u32;
+            soup.positions.extend(t.map(|i| m.positions[i as usize]));
+            soup.triangles.push([base, base + 1, base + 2]);
+        }
+    }
+    assert_eq!(
+        component_sizes(&soup),
+        vec![big.triangles.len(), small.triangles.len()]
+    );
+    let kept = largest_component(&soup);
+    assert_eq!(kept.triangles.len(), big.triangles.len());
+    assert_eq!(kept.positions.len(), big.positions.len());
+    assert!(kept.positions.iter().all(|p| p.x < 2.0));
+    assert!(is_closed(&kept));
+    assert!((kept.volume() - big.volume()).abs() < 1e-5);
+    assert!(largest_component(&TriMesh::default()).triangles.is_empty());
+}
+
+#[test]
+fn weld_merges_within_tolerance_and_drops_degenerate_triangles() {
+    let m = TriMesh {
+        positions: vec![
+            Vec3::ZERO,
+            Vec3::X,
+            Vec3::Y,
+            Vec3::new(1.0, 1e-7, 0.0),
+            Vec3::new(0.0, 1.0, 1e-7),
+            Vec3::ONE,
+        ],
+        triangles: vec![[0, 1, 2], [3, 5, 4], [1, 3, 2]],
+    };
+    let w = weld(&m, 1e-4);
+    assert_eq!(w.positions.len(), 4);
+    assert_eq!(w.triangles, vec![[0, 1, 2], [1, 3, 2]]);
+    // Exact welding keeps the nearly coincident vertices apart.
+    assert_eq!(weld(&m, 0.0).positions.len(), 6);
+}
+
+#[test]
+fn empty_and_invalid_meshes_are_errors() {
+    let good = icosphere(Vec3::ZERO, 1.0, 1);
+    let empty = TriMesh::default();
+    assert!(matches!(
+        chamfer(&empty, &good, 100, 0.1, 0),
+        Err(EvalError::EmptyMesh { .. })
+    ));
+    assert!(matches!(
+        chamfer(&good, &empty, 100, 0.1, 0),
+        Err(EvalError::EmptyMesh { .. })
+    ));
+    let flat = TriMesh {
+        positions: vec![Vec3::ZERO, Vec3::X, Vec3::X * 2.0],
+        triangles: vec![[0, 1, 2]],
+    };
+    assert!(matches!(
+        chamfer(&flat, &good, 100, 0.1, 0),
+        Err(EvalError::EmptyMesh { .. })
+    ));
+    let out_of_range = TriMesh {
+        positions: vec![Vec3::ZERO],
+        triangles: vec![[0, 1, 2]],
+    };
+    assert!(matches!(
+        chamfer(&out_of_range, &good, 100, 0.1, 0),
+        Err(EvalError::InvalidMesh { .. })
+    ));
+    let mut nan = good.clone();
+    nan.positions[0].x = f32::NAN;
+    assert!(matches!(
+        chamfer(&nan, &good, 100, 0.1, 0),
+        Err(EvalError::InvalidMesh { .. })
+    ));
+    assert!(matches!(
+        chamfer(&good, &good, 0, 0.1, 0),
+        Err(EvalError::InvalidArgument(_))
+    ));
+    assert!(matches!(
+        chamfer(&good, &good, 10, f32::NAN, 0),
+        Err(EvalError::InvalidArgument(_))
+    ));
+    let e = chamfer(&empty, &good, 100, 0.1, 0).unwrap_err().to_string();
+    assert!(e.contains("predicted"), "{e}");
+}

@@ -1,0 +1,99 @@
+use gtsr_eval::report::{ReportRow, format_duration, markdown_table, write_markdown};
+use gtsr_eval::timeline::{Timeline, TimelinePoint, plot_png};
+
+fn timeline(label: &str, scale: f64, with_chamfer: bool) -> Timeline {
+    let mut t = Timeline::new();
+    for k in 0..8u64 {
+        t.push(TimelinePoint {
+            iteration: k * 1000,
+            train_seconds: k as f64 * 12.5 * scale,
+            psnr: 20.0 + 2.0 * (k as f64).sqrt() * scale,
+            ssim: 0.8 + 0.01 * k as f64,
+            chamfer: (with_chamfer && k % 2 == 0).then(|| 0.05 / (1.0 + k as f64)),
+            gaussians: 10_000 + 5_000 * k,
+            label: label.to_string(),
+        });
+    }
+    t
+}
+
+#[test]
+fn csv_round_trips_exactly() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("timeline.csv");
+    let mut t = timeline("gtsr, \"full\"", 1.0, true);
+    t.points[3].psnr = 1.0 / 3.0;
+    t.write_csv(&path).unwrap();
+    let back = Timeline::read_csv(&path).unwrap();
+    assert_eq!(back, t);
+    // No temporary file left behind.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    std::fs::write(
+        &path,
+        "iteration,train_seconds,psnr,ssim,chamfer,gaussians,label\n1,2,x,4,,5,a\n",
+    )
+    .unwrap();
+    let e = Timeline::read_csv(&path).unwrap_err().to_string();
+    assert!(e.contains("line 2") && e.contains("psnr"), "{e}");
+    std::fs::write(&path, "a,b\n").unwrap();
+    assert!(Timeline::read_csv(&path).is_err());
+}
+
+#[test]
+fn plots_are_written_as_png() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (timeline("a", 1.0, true), timeline("b", 1.3, false));
+    let two = dir.path().join("two.png");
+    plot_png(&two, &[("gtsr", &a), ("pgsr", &b)]).unwrap();
+    let img = image::open(&two).unwrap().to_rgb8();
+    assert_eq!(img.dimensions(), (1400, 560));
+    // Something other than white background was drawn in both halves.
+    let non_white = |x0: u32, x1: u32| {
+        img.enumerate_pixels()
+            .filter(|(x, _, p)| *x >= x0 && *x < x1 && p.0 != [255, 255, 255])
+            .count()
+    };
+    assert!(non_white(0, 700) > 1000 && non_white(700, 1400) > 1000);
+    if let Ok(keep) = std::env::var("GTSR_EVAL_KEEP_PLOT") {
+        std::fs::copy(&two, keep).unwrap();
+    }
+    let one = dir.path().join("one.png");
+    plot_png(&one, &[("pgsr", &b)]).unwrap();
+    assert!(std::fs::metadata(&one).unwrap().len() > 1000);
+    assert!(plot_png(&dir.path().join("none.png"), &[("empty", &Timeline::new())]).is_err());
+}
+
+#[test]
+fn markdown_table_formats_and_escapes() {
+    let rows = vec![
+        ReportRow {
+            method: "GTSR".into(),
+            scene: "bear|1".into(),
+            chamfer: Some(0.00071),
+            fscore: Some(0.98765),
+            psnr: Some(45.281),
+            ssim: Some(0.99612),
+            wall_seconds: Some(9000.4),
+            gaussians: Some(312_000),
+        },
+        ReportRow {
+            method: "PGSR".into(),
+            scene: "bear".into(),
+            wall_seconds: Some(125.0),
+            ..Default::default()
+        },
+    ];
+    let t = markdown_table(&rows);
+    let lines: Vec<&str> = t.lines().collect();
+    assert_eq!(lines.len(), 4);
+    assert_eq!(
+        lines[2],
+        "| GTSR | bear\\|1 | 0.71 | 0.988 | 45.28 | 0.9961 | 2:30:00 | 312000 |"
+    );
+    assert_eq!(lines[3], "| PGSR | bear | - | - | - | - | 2:05 | - |");
+    assert_eq!(format_duration(59.6), "1:00");
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("r.md");
+    write_markdown(&p, &rows).unwrap();
+    assert_eq!(std::fs::read_to_string(&p).unwrap(), t);
+}

@@ -1,0 +1,365 @@
+//! Evaluation, mesh extraction and everything written to `--out`.
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use glam::Vec3;
+use gtsr_data::Scene;
+use gtsr_data::ply::{TriMesh, write_ply};
+use gtsr_eval::{
+    ImageRef, MeshMetrics, Timeline, TsdfVolume, chamfer, largest_component, psnr, ssim,
+};
+use gtsr_model::checkpoint::write_atomic;
+use gtsr_model::export::write_splat_ply;
+use gtsr_model::model::Model;
+use gtsr_model::trainer::Trainer;
+use gtsr_model::views::ViewTensors;
+use serde::Serialize;
+
+/// TSDF settings from the command line (`None`: from the scene radius).
+pub struct MeshSettings {
+    /// Voxel size.
+    pub voxel: Option<f32>,
+    /// Truncation distance.
+    pub truncation: Option<f32>,
+}
+
+/// One evaluation.
+pub struct Evaluation {
+    /// Mean test PSNR of C_SH.
+    pub psnr: f64,
+    /// Mean test SSIM of C_SH.
+    pub ssim: f64,
+    /// Mean masked test PSNR of C_SH.
+    pub psnr_masked: Option<f64>,
+    /// Mean test PSNR of C_PBR (stage 2 with PBR).
+    pub psnr_pbr: Option<f64>,
+    /// Mesh metrics against the ground truth.
+    pub mesh: Option<MeshMetrics>,
+    /// The extracted mesh.
+    pub extracted: Option<TriMesh>,
+    /// Seconds spent evaluating.
+    pub seconds: f64,
+}
+
+fn host(t: burn::tensor::Tensor<3>) -> Vec<f32> {
+    t.into_data().convert::<f32>().into_vec().expect("f32 data")
+}
+
+fn host2(t: burn::tensor::Tensor<2>) -> Vec<f32> {
+    t.into_data().convert::<f32>().into_vec().expect("f32 data")
+}
+
+/// Axis-aligned box holding the central 98 % of the surface means per axis, grown by 10 %.
+fn mesh_bounds(model: &Model) -> (Vec3, Vec3) {
+    let host = model.surface.to_host();
+    let (m, _) = host
+        .column(gtsr_model::gaussians::ParamKind::Means)
+        .expect("means");
+    let mut lo = Vec3::ZERO;
+    let mut hi = Vec3::ZERO;
+    for k in 0..3 {
+        let mut v: Vec<f32> = m
+            .chunks_exact(3)
+            .map(|p| p[k])
+            .filter(|x| x.is_finite())
+            .collect();
+        if v.is_empty() {
+            continue;
+        }
+        v.sort_by(|a, b| a.total_cmp(b));
+        let a = v[v.len() / 100];
+        let b = v[v.len() - 1 - v.len() / 100];
+        let pad = 0.1 * (b - a).max(1e-3);
+        lo[k] = a - pad;
+        hi[k] = b + pad;
+    }
+    (lo, hi)
+}
+
+/// TSDF fusion of the unbiased depth of every training view (depth kept where the mask, or
+/// without masks the surface coverage, is at least 0.5), marching cubes, largest component.
+pub fn extract_mesh(
+    trainer: &Trainer,
+    scene: &Scene,
+    settings: &MeshSettings,
+    coarse: bool,
+) -> Result<TriMesh> {
+    let (lo, hi) = mesh_bounds(&trainer.model);
+    let radius = 0.5 * (hi - lo).max_element();
+    let mut voxel = settings
+        .voxel
+        .unwrap_or_else(|| gtsr_eval::default_voxel_for_radius(radius));
+    if coarse {
+        voxel *= 2.5;
+    }
+    let trunc = settings
+        .truncation
+        .unwrap_or(voxel * gtsr_eval::tsdf::DEFAULT_TRUNCATION_VOXELS)
+        .max(voxel);
+    let mut tsdf = TsdfVolume::new(lo, hi, voxel, trunc)?;
+    for (v, data) in trainer.views.iter().zip(&scene.train) {
+        let g = trainer.model.render_depth(&v.camera, &v.rays)?;
+        let mut depth = host2(g.depth);
+        let cov = host2(g.coverage);
+        let mask: Vec<f32> = match &data.mask {
+            Some(m) => m.clone(),
+            None => cov
+                .iter()
+                .map(|c| if *c >= 0.5 { 1.0 } else { 0.0 })
+                .collect(),
+        };
+        for (d, (c, m)) in depth.iter_mut().zip(cov.iter().zip(&mask)) {
+            if *c < 0.5 || *m < 0.5 || !d.is_finite() {
+                *d = 0.0;
+            }
+        }
+        tsdf.integrate(&data.camera, &depth, Some(&mask))?;
+    }
+    Ok(largest_component(&tsdf.extract_mesh()))
+}
+
+/// Renders the test views (PSNR/SSIM of C_SH, and of C_PBR when present) and, with a
+/// ground-truth mesh, extracts a mesh and measures it.
+pub fn evaluate(
+    trainer: &Trainer,
+    tests: &[ViewTensors],
+    scene: &Scene,
+    gt: Option<&TriMesh>,
+    settings: &MeshSettings,
+    coarse: bool,
+) -> Result<Evaluation> {
+    let t0 = Instant::now();
+    let opts = trainer.render_options(trainer.step, false);
+    let (mut p, mut s, mut pm, mut pp, mut n, mut nm, mut np) =
+        (0.0, 0.0, 0.0, 0.0, 0usize, 0usize, 0usize);
+    for (v, data) in tests.iter().zip(&scene.test) {
+        let (w, h) = v.size();
+        let r = trainer.model.render(&v.camera, &v.rays, opts)?;
+        let img: Vec<f32> = host(r.c_sh).iter().map(|x| x.clamp(0.0, 1.0)).collect();
+        let pred = ImageRef::new(w, h, 3, &img);
+        let gt_img = ImageRef::new(w, h, 3, &data.rgb);
+        p += psnr(pred, gt_img, None)?.min(99.0);
+        s += ssim(pred, gt_img, None)?;
+        n += 1;
+        if let Some(m) = &data.mask
+            && m.iter().any(|x| *x > 0.5)
+        {
+            pm += psnr(pred, gt_img, Some(m))?.min(99.0);
+            nm += 1;
+        }
+        if let Some(pbr) = r.c_pbr {
+            let img: Vec<f32> = host(pbr).iter().map(|x| x.clamp(0.0, 1.0)).collect();
+            pp += psnr(ImageRef::new(w, h, 3, &img), gt_img, None)?.min(99.0);
+            np += 1;
+        }
+    }
+    let (mesh, extracted) = match gt {
+        Some(gt) if trainer.is_stage2(trainer.step.saturating_sub(1)) => {
+            let m = extract_mesh(trainer, scene, settings, coarse)?;
+            if m.triangles.is_empty() {
+                (None, Some(m))
+            } else {
+                let radius = 0.5 * {
+                    let (a, b) = gt.bounds();
+                    (b - a).max_element()
+                };
+                (Some(chamfer(&m, gt, 50_000, 0.01 * radius, 0)?), Some(m))
+            }
+        }
+        _ => (None, None),
+    };
+    let avg = |x: f64, k: usize| if k > 0 { Some(x / k as f64) } else { None };
+    Ok(Evaluation {
+        psnr: p / n.max(1) as f64,
+        ssim: s / n.max(1) as f64,
+        psnr_masked: avg(pm, nm),
+        psnr_pbr: avg(pp, np),
+        mesh,
+        extracted,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// Writes `value` as pretty JSON, atomically.
+pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
+    let text = serde_json::to_string_pretty(value).context("serialising JSON")?;
+    write_atomic(path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))
+}
+
+/// `gaussians.ply`.
+pub fn write_splats(trainer: &Trainer, out: &Path) -> Result<usize> {
+    let path = out.join("gaussians.ply");
+    write_splat_ply(&trainer.model, &path).with_context(|| format!("writing {}", path.display()))
+}
+
+fn to_u8(v: f32) -> u8 {
+    (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8
+}
+
+/// PNG strips per test view: ground truth | C_SH | C_PBR | normal | depth.
+fn write_strips(
+    trainer: &Trainer,
+    tests: &[ViewTensors],
+    scene: &Scene,
+    dir: &Path,
+) -> Result<usize> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut opts = trainer.render_options(trainer.step, false);
+    opts.geometry = true;
+    for (k, (v, data)) in tests.iter().zip(&scene.test).enumerate() {
+        let (w, h) = v.size();
+        let r = trainer.model.render(&v.camera, &v.rays, opts)?;
+        let geo = match r.geometry.clone() {
+            Some(g) => g,
+            None => trainer.model.render_depth(&v.camera, &v.rays)?,
+        };
+        let sh = host(r.c_sh);
+        let pbr = r.c_pbr.map(host);
+        let normal = host(geo.normal);
+        let depth = host2(geo.depth);
+        let cov = host2(geo.coverage);
+        let covered: Vec<f32> = depth
+            .iter()
+            .zip(&cov)
+            .filter(|(d, c)| **c > 0.5 && d.is_finite())
+            .map(|(d, _)| *d)
+            .collect();
+        let (dmin, dmax) = covered
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), d| {
+                (a.min(*d), b.max(*d))
+            });
+        let mut img = image::RgbImage::new((5 * w) as u32, h as u32);
+        for y in 0..h {
+            for x in 0..w {
+                let p = y * w + x;
+                let rgb = |v: &[f32]| [to_u8(v[3 * p]), to_u8(v[3 * p + 1]), to_u8(v[3 * p + 2])];
+                let panels = [
+                    rgb(&data.rgb),
+                    rgb(&sh),
+                    pbr.as_ref().map_or([0, 0, 0], |b| rgb(b)),
+                    {
+                        let c = cov[p].max(1e-3);
+                        let n: [f32; 3] = std::array::from_fn(|i| normal[3 * p + i] / c);
+                        if cov[p] > 0.5 {
+                            n.map(|v| to_u8(0.5 - 0.5 * v))
+                        } else {
+                            [0, 0, 0]
+                        }
+                    },
+                    if cov[p] > 0.5 && dmax > dmin {
+                        let g = to_u8(1.0 - (depth[p] - dmin) / (dmax - dmin) * 0.8);
+                        [g, g, g]
+                    } else {
+                        [0, 0, 0]
+                    },
+                ];
+                for (i, c) in panels.iter().enumerate() {
+                    img.put_pixel((i * w + x) as u32, y as u32, image::Rgb(*c));
+                }
+            }
+        }
+        let path = dir.join(format!("test_{k:03}.png"));
+        let tmp = dir.join(format!(".test_{k:03}.png.tmp"));
+        img.save_with_format(&tmp, image::ImageFormat::Png)
+            .with_context(|| format!("writing {}", tmp.display()))?;
+        std::fs::rename(&tmp, &path).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(tests.len())
+}
+
+#[derive(Serialize)]
+struct Metrics {
+    iterations: usize,
+    train_seconds: f64,
+    surface_gaussians: usize,
+    interior_gaussians: usize,
+    skipped_steps: usize,
+    raster_passes: usize,
+    test_psnr: f64,
+    test_ssim: f64,
+    test_psnr_masked: Option<f64>,
+    test_psnr_pbr: Option<f64>,
+    mesh: Option<MeshMetrics>,
+    mesh_vertices: usize,
+    mesh_triangles: usize,
+}
+
+/// Final outputs: mesh, splats, renders, metrics, error-against-time plot.
+#[allow(clippy::too_many_arguments)]
+pub fn finish(
+    trainer: &Trainer,
+    tests: &[ViewTensors],
+    scene: &Scene,
+    gt: Option<&TriMesh>,
+    settings: &MeshSettings,
+    timeline: &Timeline,
+    train_seconds: f64,
+    out: &Path,
+) -> Result<()> {
+    println!("final evaluation and mesh extraction...");
+    let e = evaluate(trainer, tests, scene, gt, settings, false)?;
+    let mesh = match e.extracted.clone() {
+        Some(m) => m,
+        None => extract_mesh(trainer, scene, settings, false)?,
+    };
+    let mesh_path = out.join("mesh.ply");
+    write_ply(&mesh_path, &mesh).with_context(|| format!("writing {}", mesh_path.display()))?;
+    let n_splats = write_splats(trainer, out)?;
+    let n_strips = write_strips(trainer, tests, scene, &out.join("renders"))?;
+    let (ns, ni) = trainer.model.counts();
+    let metrics = Metrics {
+        iterations: trainer.step,
+        train_seconds,
+        surface_gaussians: ns,
+        interior_gaussians: ni,
+        skipped_steps: trainer.counters.skipped_steps,
+        raster_passes: trainer.counters.passes,
+        test_psnr: e.psnr,
+        test_ssim: e.ssim,
+        test_psnr_masked: e.psnr_masked,
+        test_psnr_pbr: e.psnr_pbr,
+        mesh: e.mesh,
+        mesh_vertices: mesh.positions.len(),
+        mesh_triangles: mesh.triangles.len(),
+    };
+    write_json(&out.join("metrics.json"), &metrics)?;
+    let plot = out.join("error_vs_time.png");
+    if !timeline.points.is_empty() {
+        gtsr_eval::plot_png(&plot, &[("gtsr", timeline)])
+            .with_context(|| format!("writing {}", plot.display()))?;
+    }
+    println!("outputs in {}:", out.display());
+    println!(
+        "  mesh.ply            {} vertices, {} triangles",
+        mesh.positions.len(),
+        mesh.triangles.len()
+    );
+    println!("  gaussians.ply       {n_splats} splats ({ns} surface, {ni} interior)");
+    println!(
+        "  renders/            {n_strips} strips: ground truth | C_SH | C_PBR | normal | depth"
+    );
+    println!(
+        "  metrics.json, config.json, error_vs_time.csv, error_vs_time.png, checkpoint.safetensors"
+    );
+    println!(
+        "final: {} steps in {:.0} s training; test PSNR {:.2} dB, SSIM {:.4}{}{}",
+        trainer.step,
+        train_seconds,
+        e.psnr,
+        e.ssim,
+        e.psnr_pbr
+            .map_or(String::new(), |p| format!(", C_PBR PSNR {p:.2} dB")),
+        e.mesh.as_ref().map_or(String::new(), |m| format!(
+            "; chamfer {:.5} (x1e3 {:.2}), F-score {:.3} at {:.4}, normal consistency {:.3}",
+            m.chamfer,
+            m.chamfer * 1e3,
+            m.fscore,
+            m.threshold,
+            m.normal_consistency
+        ))
+    );
+    Ok(())
+}

@@ -1,0 +1,447 @@
+//! The run: scene, configuration, training loop with progress, evaluations along the way
+//! (off the training clock), checkpoints, Ctrl-C, final outputs.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use burn::tensor::Device;
+use gtsr_data::synthetic::{MaterialPreset, SceneConfig, ShapeKind, generate_scene};
+use gtsr_data::{Downscale, LoadOptions, Scene, load_scene};
+use gtsr_eval::{Timeline, TimelinePoint};
+use gtsr_model::checkpoint;
+use gtsr_model::config::{Decision, Init, Preset, TrainConfig, auto_components};
+use gtsr_model::trainer::{Trainer, initial_points};
+use gtsr_model::views::{ViewTensors, scene_evidence};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::{Deserialize, Serialize};
+
+use crate::outputs::{self, MeshSettings};
+use crate::{Args, Backend};
+
+/// How the run ended.
+pub enum Outcome {
+    /// All iterations ran and the outputs were written.
+    Finished,
+    /// Ctrl-C: a checkpoint and partial outputs were written.
+    Interrupted,
+}
+
+/// The built-in scene: a wax teddy bear, 64x64, 60 training and 8 test views.
+fn default_scene_config() -> SceneConfig {
+    let mut c = SceneConfig::new(ShapeKind::Bear, MaterialPreset::Wax);
+    c.resolution = 64;
+    c.n_train = 60;
+    c.n_test = 8;
+    c.spp = 32;
+    c.seed = 0;
+    c
+}
+
+fn ensure_default_scene(dir: &Path) -> Result<PathBuf> {
+    let ready = [
+        "transforms_train.json",
+        "transforms_test.json",
+        "mesh.ply",
+        "meta.json",
+    ]
+    .iter()
+    .all(|f| dir.join(f).is_file());
+    if ready {
+        println!("built-in scene: reusing {}", dir.display());
+        return Ok(dir.to_path_buf());
+    }
+    let cfg = default_scene_config();
+    let tmp = dir.with_extension("partial");
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
+    }
+    let total = (cfg.n_train + cfg.n_test) as u64;
+    println!(
+        "built-in scene: path-tracing a wax bear ({}x{}, {} views, {} spp) into {}",
+        cfg.resolution,
+        cfg.resolution,
+        total,
+        cfg.spp,
+        dir.display()
+    );
+    let bar = ProgressBar::new(total).with_style(
+        ProgressStyle::with_template("  {bar:40} {pos}/{len} views  {elapsed_precise}")
+            .expect("template"),
+    );
+    generate_scene(&tmp, &cfg, |_| bar.inc(1))
+        .with_context(|| format!("generating {}", tmp.display()))?;
+    bar.finish_and_clear();
+    if let Some(parent) = dir.parent() {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("creating {}", parent.display()))?;
+    }
+    if dir.exists() {
+        std::fs::remove_dir_all(dir)
+            .with_context(|| format!("removing stale {}", dir.display()))?;
+    }
+    std::fs::rename(&tmp, dir).with_context(|| format!("moving the scene to {}", dir.display()))?;
+    Ok(dir.to_path_buf())
+}
+
+/// What `config.json` holds: every setting, plus what was decided and why.
+#[derive(Serialize, Deserialize)]
+struct ResolvedConfig {
+    data: PathBuf,
+    resolution: u32,
+    preset: String,
+    decisions: Vec<Decision>,
+    train: TrainConfig,
+}
+
+/// Progress saved with each checkpoint (training time is not in the model checkpoint).
+#[derive(Serialize, Deserialize, Default)]
+struct RunState {
+    train_seconds: f64,
+}
+
+fn resolve_config(
+    args: &Args,
+    scene: &Scene,
+    iterations: usize,
+) -> Result<(TrainConfig, Vec<Decision>)> {
+    let mut decisions = Vec::new();
+    let mut cfg = if let Some(path) = &args.config {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        // Accept both a bare TrainConfig and a config.json written by a previous run.
+        match serde_json::from_str::<ResolvedConfig>(&text) {
+            Ok(r) => r.train,
+            Err(_) => serde_json::from_str::<TrainConfig>(&text)
+                .with_context(|| format!("{}: not a gtsr-train configuration", path.display()))?,
+        }
+    } else {
+        let preset = Preset::from_name(&args.preset).with_context(|| {
+            format!(
+                "unknown preset '{}' (choose from {})",
+                args.preset,
+                Preset::ALL
+                    .iter()
+                    .map(|p| p.name())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        })?;
+        let components = match preset.components() {
+            Some(c) => c,
+            None => {
+                let (c, d) = auto_components(&scene_evidence(scene, 30.0)?);
+                decisions = d;
+                c
+            }
+        };
+        let mut c = TrainConfig::for_iterations(components, iterations);
+        // CPU-sized defaults: a few thousand steps on small images.
+        // Caps scale with the image size: about 3 surface and 1 interior Gaussian per pixel
+        // of one view (64x64: 12k + 4k) are plenty at these resolutions and keep steps short.
+        let pixels = scene.train[0].width() as usize * scene.train[0].height() as usize;
+        c.init_surface = (pixels).clamp(2_000, 20_000);
+        c.init_interior = (pixels / 2).clamp(1_000, 10_000);
+        c.densify.max_surface = (3 * pixels).clamp(10_000, 300_000);
+        c.densify.max_interior = pixels.clamp(4_000, 100_000);
+        c
+    };
+    if args.iterations.is_some() && cfg.iterations != iterations {
+        let comps = cfg.components;
+        let keep = cfg.clone();
+        cfg = TrainConfig::for_iterations(comps, iterations);
+        cfg.weights = keep.weights;
+        cfg.lr = keep.lr;
+        cfg.init = keep.init;
+        cfg.init_surface = keep.init_surface;
+        cfg.init_interior = keep.init_interior;
+        cfg.densify.max_surface = keep.densify.max_surface;
+        cfg.densify.max_interior = keep.densify.max_interior;
+        cfg.seed = keep.seed;
+    }
+    let c = &mut cfg.components;
+    for (flag, name, field) in [
+        (args.no_interior, "interior", &mut c.interior),
+        (args.no_fresnel, "fresnel", &mut c.fresnel),
+        (args.no_pbr, "pbr", &mut c.pbr),
+        (args.no_multi_view, "multi_view", &mut c.multi_view),
+        (args.no_single_view, "single_view", &mut c.single_view),
+    ] {
+        if flag {
+            *field = false;
+            decisions.push(Decision {
+                component: name.into(),
+                enabled: false,
+                reason: format!("--no-{}", name.replace('_', "-")),
+            });
+        }
+    }
+    if !c.pbr {
+        c.smoothness = false;
+    }
+    if let Some(d) = args.sh_degree {
+        c.sh_degree = d;
+    }
+    if let Some(s) = args.seed {
+        cfg.seed = s;
+    }
+    if let Some(init) = &args.init {
+        cfg.init = match init.as_str() {
+            "random" => Init::Random,
+            "mask-carved" => Init::MaskCarved,
+            other => bail!("unknown --init '{other}' (random or mask-carved)"),
+        };
+    }
+    cfg.validate()
+        .map_err(|e| anyhow::anyhow!("invalid configuration: {e}"))?;
+    Ok((cfg, decisions))
+}
+
+/// 3DGS's scene extent: 1.1 times the largest distance of a camera centre from their mean.
+fn camera_extent(views: &[ViewTensors]) -> f64 {
+    let n = views.len() as f64;
+    let centres: Vec<[f64; 3]> = views.iter().map(|v| v.camera.centre()).collect();
+    let mean: [f64; 3] = std::array::from_fn(|k| centres.iter().map(|c| c[k]).sum::<f64>() / n);
+    let r = centres
+        .iter()
+        .map(|c| (0..3).map(|k| (c[k] - mean[k]).powi(2)).sum::<f64>().sqrt())
+        .fold(0.0, f64::max);
+    (1.1 * r).max(1e-3)
+}
+
+/// Runs everything `args` asks for.
+pub fn run(args: &Args) -> Result<Outcome> {
+    if args.backend == Backend::Wgpu {
+        bail!(
+            "--backend wgpu: this build has no wgpu splatting kernels yet (the CubeCL kernels are a separate, open issue); use --backend ndarray"
+        );
+    }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let data_dir = match &args.data {
+        Some(d) => d.clone(),
+        None => ensure_default_scene(&args.scene_cache)?,
+    };
+    let blender = data_dir.join("transforms_train.json").is_file();
+    let resolution = args
+        .resolution
+        .unwrap_or(if args.data.is_none() { 64 } else { 128 });
+    let opts = LoadOptions {
+        downscale: Downscale::MaxSide(resolution),
+        // Blender/NeRF object scenes are already object-centred; COLMAP scenes are normalised.
+        apply_normalisation: !blender,
+        ..LoadOptions::default()
+    };
+    let scene = load_scene(&data_dir, &opts)
+        .with_context(|| format!("loading the dataset {}", data_dir.display()))?;
+    if scene.train.is_empty() {
+        bail!("{}: no training views", data_dir.display());
+    }
+    let iterations = args
+        .iterations
+        .unwrap_or(if args.data.is_none() { 1500 } else { 3000 });
+    let (config, decisions) = resolve_config(args, &scene, iterations)?;
+    for d in &decisions {
+        println!(
+            "component {}: {} ({})",
+            d.component,
+            if d.enabled { "on" } else { "off" },
+            d.reason
+        );
+    }
+    let resolved = ResolvedConfig {
+        data: data_dir.clone(),
+        resolution,
+        preset: args.preset.clone(),
+        decisions,
+        train: config.clone(),
+    };
+    outputs::write_json(&args.out.join("config.json"), &resolved)?;
+
+    let device = Device::ndarray().autodiff();
+    let views: Vec<ViewTensors> = scene
+        .train
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            ViewTensors::new(v, i, &device)
+                .with_context(|| format!("dataset {}", data_dir.display()))
+        })
+        .collect::<Result<_>>()?;
+    let tests: Vec<ViewTensors> = scene
+        .test
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            ViewTensors::new(v, i, &device)
+                .with_context(|| format!("dataset {}", data_dir.display()))
+        })
+        .collect::<Result<_>>()?;
+    let extent = camera_extent(&views);
+    let ckpt_path = args.out.join("checkpoint.safetensors");
+    let state_path = args.out.join("run_state.json");
+    let timeline_path = args.out.join("error_vs_time.csv");
+    let (mut trainer, mut train_seconds, mut timeline) = if args.resume {
+        let t = checkpoint::load(&ckpt_path, views, &device)
+            .with_context(|| "resuming (--resume)".to_string())?;
+        let state: RunState = std::fs::read_to_string(&state_path)
+            .ok()
+            .and_then(|s| serde_json::from_str(&s).ok())
+            .unwrap_or_default();
+        let tl = Timeline::read_csv(&timeline_path).unwrap_or_default();
+        println!("resuming at step {} of {}", t.step, t.config.iterations);
+        (t, state.train_seconds, tl)
+    } else {
+        let masks: Vec<_> = views
+            .iter()
+            .zip(&scene.train)
+            .map(|(v, s)| (v.camera.clone(), s.mask.clone()))
+            .collect();
+        let points = initial_points(&config, &masks)?;
+        (
+            Trainer::new(config, views, extent, &points, &device)?,
+            0.0,
+            Timeline::new(),
+        )
+    };
+    let iterations = trainer.config.iterations;
+    let gt_mesh = match &scene.mesh_path {
+        Some(p) => {
+            let mut m = gtsr_data::ply::read_ply(p)
+                .with_context(|| format!("reading the ground-truth mesh {}", p.display()))?;
+            if scene.normalisation_applied {
+                for v in m.positions.iter_mut() {
+                    *v = scene.normalisation.to_normalised(*v);
+                }
+            }
+            Some(m)
+        }
+        None => None,
+    };
+    let mesh_settings = MeshSettings {
+        voxel: args.voxel,
+        truncation: args.truncation,
+    };
+
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
+            .context("installing the Ctrl-C handler")?;
+    }
+    let eval_steps: Vec<usize> = (1..=args.eval_points.max(1))
+        .map(|k| (iterations * k).div_ceil(args.eval_points.max(1)))
+        .collect();
+    println!(
+        "training {} steps on {} views ({}x{}), {} test views; outputs in {}",
+        iterations,
+        trainer.views.len(),
+        trainer.views[0].size().0,
+        trainer.views[0].size().1,
+        tests.len(),
+        args.out.display()
+    );
+    let bar = ProgressBar::new(iterations as u64).with_style(
+        ProgressStyle::with_template(
+            "{bar:40} {pos}/{len} [{elapsed_precise} < {eta_precise}] {msg}",
+        )
+        .expect("template"),
+    );
+    bar.set_position(trainer.step as u64);
+    let log_every = (iterations / 20).max(1);
+    while trainer.step < iterations {
+        if stop.load(Ordering::SeqCst) {
+            bar.abandon_with_message("interrupted");
+            println!("Ctrl-C: writing a checkpoint and partial outputs");
+            save_checkpoint(&trainer, &ckpt_path, &state_path, train_seconds)?;
+            timeline.write_csv(&timeline_path)?;
+            outputs::write_splats(&trainer, &args.out)?;
+            println!("checkpoint {}; continue with --resume", ckpt_path.display());
+            return Ok(Outcome::Interrupted);
+        }
+        let t0 = Instant::now();
+        let r = trainer.step()?;
+        train_seconds += t0.elapsed().as_secs_f64();
+        bar.set_position(trainer.step as u64);
+        bar.set_message(format!(
+            "stage {} loss {:.4} gaussians {}+{}",
+            r.stage, r.loss, r.counts.0, r.counts.1
+        ));
+        if trainer.step % log_every == 0 && bar.is_hidden() {
+            println!(
+                "step {:6}/{iterations}  stage {}  loss {:.4}  gaussians {}+{}  {:.1} s",
+                trainer.step, r.stage, r.loss, r.counts.0, r.counts.1, train_seconds
+            );
+        }
+        if eval_steps.contains(&trainer.step) {
+            let e = outputs::evaluate(
+                &trainer,
+                &tests,
+                &scene,
+                gt_mesh.as_ref(),
+                &mesh_settings,
+                true,
+            )?;
+            let (ns, ni) = trainer.model.counts();
+            timeline.push(TimelinePoint {
+                iteration: trainer.step as u64,
+                train_seconds,
+                psnr: e.psnr,
+                ssim: e.ssim,
+                chamfer: e.mesh.as_ref().map(|m| m.chamfer),
+                gaussians: (ns + ni) as u64,
+                label: "test".into(),
+            });
+            timeline.write_csv(&timeline_path)?;
+            say(
+                &bar,
+                format!(
+                    "eval @ {:6}: test PSNR {:.2} dB, SSIM {:.4}{}  (train time {:.0} s, eval {:.1} s)",
+                    trainer.step,
+                    e.psnr,
+                    e.ssim,
+                    e.mesh.as_ref().map_or(String::new(), |m| format!(
+                        ", chamfer {:.5} (x1e3: {:.2})",
+                        m.chamfer,
+                        m.chamfer * 1e3
+                    )),
+                    train_seconds,
+                    e.seconds
+                ),
+            );
+        }
+        if args.checkpoint_every > 0 && trainer.step % args.checkpoint_every == 0 {
+            save_checkpoint(&trainer, &ckpt_path, &state_path, train_seconds)?;
+        }
+    }
+    bar.finish_and_clear();
+    save_checkpoint(&trainer, &ckpt_path, &state_path, train_seconds)?;
+    timeline.write_csv(&timeline_path)?;
+    outputs::finish(
+        &trainer,
+        &tests,
+        &scene,
+        gt_mesh.as_ref(),
+        &mesh_settings,
+        &timeline,
+        train_seconds,
+        &args.out,
+    )?;
+    Ok(Outcome::Finished)
+}
+
+/// Prints above the progress bar, or plainly when the bar is hidden (not a terminal).
+fn say(bar: &ProgressBar, line: String) {
+    if bar.is_hidden() {
+        println!("{line}");
+    } else {
+        bar.println(line);
+    }
+}
+
+fn save_checkpoint(trainer: &Trainer, ckpt: &Path, state: &Path, train_seconds: f64) -> Result<()> {
+    checkpoint::save(trainer, ckpt)?;
+    outputs::write_json(state, &RunState { train_seconds })
+}
