@@ -1,5 +1,6 @@
 //! Project tasks: `cargo xtask <command>`.
 
+mod bench_recon;
 mod gen_scene;
 mod stability;
 
@@ -20,11 +21,16 @@ enum Cmd {
     /// Render a synthetic translucent scene with ground truth (Blender/NeRF layout, mesh.ply,
     /// meta.json) with the CPU path tracer of gtsr-data.
     GenScene(gen_scene::GenSceneArgs),
+    /// Reconstruct each scene with the full model, the three ablations of the paper and the
+    /// PGSR-like baseline (via gtsr-train), plus a mask-only visual hull; write a markdown table
+    /// and one combined error-against-time plot.
+    BenchRecon(bench_recon::BenchReconArgs),
 }
 
 fn main() -> anyhow::Result<()> {
     match Cli::parse().command {
         Cmd::Stability => stability::run(),
         Cmd::GenScene(args) => gen_scene::run(&args),
+        Cmd::BenchRecon(args) => bench_recon::run(&args),
     }
 }
