@@ -51,32 +51,39 @@ fn host2(t: burn::tensor::Tensor<2>) -> Vec<f32> {
     t.into_data().convert::<f32>().into_vec().expect("f32 data")
 }
 
-/// Axis-aligned box holding the central 98 % of the surface means per axis, grown by 10 %.
+/// Axis-aligned box around the surface Gaussians that matter (opacity at least 0.05; all of
+/// them when fewer than 100 do), grown by 10 %. Percentile boxes cut thin parts such as ears
+/// off, so the extremes are kept.
 fn mesh_bounds(model: &Model) -> (Vec3, Vec3) {
+    use gtsr_model::gaussians::ParamKind;
     let host = model.surface.to_host();
-    let (m, _) = host
-        .column(gtsr_model::gaussians::ParamKind::Means)
-        .expect("means");
-    let mut lo = Vec3::ZERO;
-    let mut hi = Vec3::ZERO;
-    for k in 0..3 {
-        let mut v: Vec<f32> = m
-            .chunks_exact(3)
-            .map(|p| p[k])
-            .filter(|x| x.is_finite())
-            .collect();
-        if v.is_empty() {
-            continue;
-        }
-        v.sort_by(|a, b| a.total_cmp(b));
-        let a = v[v.len() / 100];
-        let b = v[v.len() - 1 - v.len() / 100];
-        let pad = 0.1 * (b - a).max(1e-3);
-        lo[k] = a - pad;
-        hi[k] = b + pad;
+    let (m, _) = host.column(ParamKind::Means).expect("means");
+    let (o, _) = host.column(ParamKind::Opacity).expect("opacity");
+    let min_logit = gtsr_model::gaussians::logit(0.05) as f32;
+    let pick = |strong: bool| -> Vec<Vec3> {
+        m.chunks_exact(3)
+            .zip(o)
+            .filter(|(p, l)| p.iter().all(|x| x.is_finite()) && (!strong || **l >= min_logit))
+            .map(|(p, _)| Vec3::new(p[0], p[1], p[2]))
+            .collect()
+    };
+    let mut pts = pick(true);
+    if pts.len() < 100 {
+        pts = pick(false);
     }
-    (lo, hi)
+    let (lo, hi) = pts.iter().fold(
+        (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+        |(a, b), p| (a.min(*p), b.max(*p)),
+    );
+    if !lo.is_finite() || !hi.is_finite() {
+        return (Vec3::splat(-1.0), Vec3::splat(1.0));
+    }
+    let pad = 0.1 * (hi - lo).max_element().max(1e-3);
+    (lo - pad, hi + pad)
 }
+
+/// Pixels whose blended normal makes a cosine below this with the ray are not fused.
+const GRAZING_COS: f32 = 0.2;
 
 /// TSDF fusion of the unbiased depth of every training view (depth kept where the mask, or
 /// without masks the surface coverage, is at least 0.5), marching cubes, largest component.
@@ -101,8 +108,24 @@ pub fn extract_mesh(
     let mut tsdf = TsdfVolume::new(lo, hi, voxel, trunc)?;
     for (v, data) in trainer.views.iter().zip(&scene.train) {
         let g = trainer.model.render_depth(&v.camera, &v.rays)?;
+        let normal = host(g.normal);
+        let rays = host(v.rays.clone());
         let mut depth = host2(g.depth);
         let cov = host2(g.coverage);
+        // The unbiased depth divides by -(N . r): where the blended normal is nearly
+        // perpendicular to the ray (silhouettes, mixed pixels) it runs far behind the surface,
+        // and fusing it would carve the surface away along that ray. Keep pixels whose normal
+        // faces the ray at more than GRAZING_COS.
+        for (p, d) in depth.iter_mut().enumerate() {
+            let n = &normal[3 * p..3 * p + 3];
+            let r = &rays[3 * p..3 * p + 3];
+            let nl = n.iter().map(|x| x * x).sum::<f32>().sqrt();
+            let rl = r.iter().map(|x| x * x).sum::<f32>().sqrt();
+            let cos = -(n[0] * r[0] + n[1] * r[1] + n[2] * r[2]) / (nl * rl).max(1e-12);
+            if cos < GRAZING_COS {
+                *d = 0.0;
+            }
+        }
         let mask: Vec<f32> = match &data.mask {
             Some(m) => m.clone(),
             None => cov
