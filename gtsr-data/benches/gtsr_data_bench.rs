@@ -21,10 +21,11 @@ fn arg(name: &str) -> Option<String> {
 }
 
 fn hundred_view_scene(tmp: &Path) -> PathBuf {
-    let src = PathBuf::from(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../shared/data/wax_knot"
-    ));
+    // Read at run time, as the loader tests do: a binary reused from a shared target directory
+    // may have been compiled in another checkout.
+    let manifest = std::env::var("CARGO_MANIFEST_DIR")
+        .unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").to_string());
+    let src = PathBuf::from(manifest).join("../../shared/data/wax_knot");
     assert!(
         src.is_dir(),
         "development data missing at {}",

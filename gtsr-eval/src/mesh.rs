@@ -257,65 +257,13 @@ pub fn is_closed(mesh: &TriMesh) -> bool {
 /// onto the sphere (`20 * 4^subdivisions` triangles), outward oriented. Vertices lie on the
 /// sphere, so the faces lie slightly inside it.
 pub fn icosphere(centre: Vec3, radius: f32, subdivisions: u32) -> TriMesh {
-    let t = (1.0 + 5.0f32.sqrt()) / 2.0;
-    let mut positions: Vec<Vec3> = [
-        (-1.0, t, 0.0),
-        (1.0, t, 0.0),
-        (-1.0, -t, 0.0),
-        (1.0, -t, 0.0),
-        (0.0, -1.0, t),
-        (0.0, 1.0, t),
-        (0.0, -1.0, -t),
-        (0.0, 1.0, -t),
-        (t, 0.0, -1.0),
-        (t, 0.0, 1.0),
-        (-t, 0.0, -1.0),
-        (-t, 0.0, 1.0),
-    ]
-    .iter()
-    .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
-    .collect();
-    let mut triangles: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..subdivisions {
-        let mut midpoint: HashMap<(u32, u32), u32> = HashMap::new();
-        let mut mid = |a: u32, b: u32, positions: &mut Vec<Vec3>| -> u32 {
-            *midpoint.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                positions.push((positions[a as usize] + positions[b as usize]).normalize());
-                (positions.len() - 1) as u32
-            })
-        };
-        let mut next = Vec::with_capacity(triangles.len() * 4);
-        for [a, b, c] in triangles {
-            let ab = mid(a, b, &mut positions);
-            let bc = mid(b, c, &mut positions);
-            let ca = mid(c, a, &mut positions);
-            next.extend_from_slice(&[[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        triangles = next;
-    }
+    let unit = gtsr_data::synthetic::shapes::icosphere(subdivisions);
     TriMesh {
-        positions: positions.iter().map(|&p| centre + p * radius).collect(),
-        triangles,
+        positions: unit
+            .positions
+            .iter()
+            .map(|&p| centre + p * radius)
+            .collect(),
+        triangles: unit.triangles,
     }
 }

@@ -15,7 +15,7 @@ use burn::tensor::Device;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_model::config::{Init, Preset, TrainConfig, auto_components};
 use gtsr_model::trainer::{Trainer, initial_points};
-use gtsr_model::views::{ViewTensors, scene_evidence};
+use gtsr_model::views::{ViewTensors, scene_evidence, upload_views};
 
 fn psnr(a: &[f32], b: &[f32]) -> f64 {
     let mse = a
@@ -65,12 +65,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut config = TrainConfig::for_iterations(components, iterations);
     config.init = init;
     let device = Device::ndarray().autodiff();
-    let views: Vec<ViewTensors> = scene
-        .train
-        .iter()
-        .enumerate()
-        .map(|(i, v)| ViewTensors::new(v, i, &device))
-        .collect::<Result<_, _>>()?;
+    let views = upload_views(&scene.train, &device)?;
     let masks: Vec<_> = views
         .iter()
         .zip(&scene.train)

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::TrainConfig;
 use crate::densify::DensifyStats;
 use crate::error::ModelError;
-use crate::gaussians::{HostSet, ParamKind, SetKind};
+use crate::gaussians::{HostSet, ParamKind, SetKind, host_vec};
 use crate::model::Model;
 use crate::optim::SetOptimizer;
 use crate::trainer::{Counters, Trainer};
@@ -64,13 +64,7 @@ pub fn save(trainer: &Trainer, path: &Path) -> Result<(), ModelError> {
         ));
     }
     if let Some(l) = &trainer.model.log_light {
-        let v: Vec<f32> = l
-            .clone()
-            .detach()
-            .into_data()
-            .convert::<f32>()
-            .into_vec()
-            .expect("f32");
+        let v = host_vec(l.clone().detach());
         let host = HostSet {
             kind: SetKind::Surface,
             n: 1,

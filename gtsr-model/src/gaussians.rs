@@ -86,6 +86,14 @@ pub struct GaussianSet {
     pub params: Vec<(ParamKind, Tensor<2>)>,
 }
 
+/// Copies a float tensor of any rank to the host as `f32` values (row-major).
+pub fn host_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data()
+        .convert::<f32>()
+        .into_vec()
+        .expect("float tensor data converts to f32")
+}
+
 /// Numerically careful logistic (Burn's `sigmoid` rounds through f32 on NdArray f64).
 pub fn logistic<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     (x.neg().exp() + 1.0).recip()
@@ -149,14 +157,7 @@ impl GaussianSet {
                 .iter()
                 .map(|(k, t)| {
                     let w = t.dims()[1];
-                    let v: Vec<f32> = t
-                        .clone()
-                        .detach()
-                        .into_data()
-                        .convert::<f32>()
-                        .into_vec()
-                        .expect("f32 data");
-                    (*k, w, v)
+                    (*k, w, host_vec(t.clone().detach()))
                 })
                 .collect(),
         }
@@ -268,13 +269,6 @@ impl HostSet {
             .map(|(_, w, v)| v[i * w..(i + 1) * w].to_vec())
             .collect()
     }
-
-    /// Whether every value is finite.
-    pub fn all_finite(&self) -> bool {
-        self.columns
-            .iter()
-            .all(|(_, _, v)| v.iter().all(|x| x.is_finite()))
-    }
 }
 
 /// Layout of a new set: which parameters and their widths.
@@ -350,75 +344,24 @@ pub fn random_quat(rng: &mut impl rand::RngExt) -> [f32; 4] {
     }
 }
 
-/// Mean distance to the three nearest neighbours (brute force within a uniform grid).
+/// Mean distance to the three nearest neighbours of each point (k-d tree).
 pub fn knn_scales(points: &[[f32; 3]]) -> Vec<f32> {
+    use kiddo::{ImmutableKdTree, SquaredEuclidean};
     if points.len() < 2 {
         return vec![0.01; points.len()];
     }
-    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-    for p in points {
-        for k in 0..3 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-        }
-    }
-    let extent = (0..3)
-        .map(|k| hi[k] - lo[k])
-        .fold(0.0f32, f32::max)
-        .max(1e-6);
-    let cells = ((points.len() as f32 / 2.0).cbrt().ceil() as usize).clamp(1, 128);
-    let cell = extent / cells as f32 + 1e-9;
-    let key = |p: &[f32; 3]| -> [usize; 3] {
-        std::array::from_fn(|k| (((p[k] - lo[k]) / cell) as usize).min(cells - 1))
-    };
-    let mut grid: std::collections::HashMap<[usize; 3], Vec<usize>> = Default::default();
-    for (i, p) in points.iter().enumerate() {
-        grid.entry(key(p)).or_default().push(i);
-    }
+    let tree: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(points);
+    let four = std::num::NonZero::new(4).expect("non-zero");
     points
         .iter()
         .enumerate()
         .map(|(i, p)| {
-            let c = key(p);
-            let mut best = [f32::INFINITY; 3];
-            let mut ring = 1usize;
-            loop {
-                for dz in -(ring as i64)..=ring as i64 {
-                    for dy in -(ring as i64)..=ring as i64 {
-                        for dx in -(ring as i64)..=ring as i64 {
-                            let q = [c[0] as i64 + dx, c[1] as i64 + dy, c[2] as i64 + dz];
-                            if q.iter().any(|&v| v < 0 || v >= cells as i64) {
-                                continue;
-                            }
-                            if let Some(list) =
-                                grid.get(&[q[0] as usize, q[1] as usize, q[2] as usize])
-                            {
-                                for &j in list {
-                                    if j == i {
-                                        continue;
-                                    }
-                                    let d2: f32 =
-                                        (0..3).map(|k| (points[j][k] - p[k]).powi(2)).sum();
-                                    if d2 < best[2] {
-                                        best[2] = d2;
-                                        best.sort_by(|a, b| a.total_cmp(b));
-                                    }
-                                }
-                            }
-                        }
-                    }
-                }
-                // Points beyond `ring` cells are at least (ring) * cell away.
-                let reach = (ring as f32 * cell).powi(2);
-                if (best[2] <= reach) || ring >= cells {
-                    break;
-                }
-                ring += 1;
-            }
-            let found: Vec<f32> = best
-                .iter()
-                .filter(|d| d.is_finite())
-                .map(|d| d.sqrt())
+            let found: Vec<f32> = tree
+                .nearest_n::<SquaredEuclidean>(p, four)
+                .into_iter()
+                .filter(|n| n.item as usize != i)
+                .take(3)
+                .map(|n| n.distance.sqrt())
                 .collect();
             if found.is_empty() {
                 0.01

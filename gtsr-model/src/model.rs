@@ -17,7 +17,7 @@ use gtsr_render_kernels::{AlphaCutoff, Camera, SplatConfig, SplatInputs, render}
 
 use crate::config::Components;
 use crate::error::ModelError;
-use crate::gaussians::{GaussianSet, ParamKind, logistic};
+use crate::gaussians::{GaussianSet, ParamKind, host_vec, logistic};
 use crate::geometry::{
     dir_to_camera, facing_normals, quat_to_matrix, to_camera, unbiased_depth, view_dirs,
 };
@@ -150,11 +150,7 @@ fn cat_prepared(a: &Prepared, b: &Prepared) -> Prepared {
 
 fn host_column(t: Tensor<2>, col: usize) -> Vec<f32> {
     let n = t.dims()[0];
-    t.slice([0..n, col..col + 1])
-        .into_data()
-        .convert::<f32>()
-        .into_vec()
-        .expect("f32 data")
+    host_vec(t.slice([0..n, col..col + 1]))
 }
 
 impl Model {

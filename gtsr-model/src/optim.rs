@@ -7,7 +7,7 @@ use std::collections::HashMap;
 use burn::optim::{Adam, AdamConfig, AdamState, AdaptiveMomentumState, Optimizer};
 use burn::tensor::{Int, Tensor, TensorData};
 
-use crate::gaussians::{GaussianSet, ParamKind};
+use crate::gaussians::{GaussianSet, ParamKind, host_vec};
 
 /// Adam states for the tensors of one set, keyed by parameter.
 pub struct SetOptimizer {
@@ -117,13 +117,7 @@ impl SetOptimizer {
 
     /// Host copies of the states (for checkpoints).
     pub fn to_host(&self) -> Vec<(ParamKind, usize, HostAdamState)> {
-        let host = |t: &Tensor<2>| -> Vec<f32> {
-            t.clone()
-                .into_data()
-                .convert::<f32>()
-                .into_vec()
-                .expect("f32 data")
-        };
+        let host = |t: &Tensor<2>| host_vec(t.clone());
         let mut v: Vec<_> = self
             .states
             .iter()

@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::{Init, TrainConfig};
 use crate::densify::{DensifyReport, DensifyStats, densify_and_prune, reset_opacity};
 use crate::error::ModelError;
-use crate::gaussians::{GaussianSet, ParamKind, SetKind, host_set_from_points};
+use crate::gaussians::{GaussianSet, ParamKind, SetKind, host_set_from_points, host_vec};
 use crate::losses;
 use crate::model::{Model, RenderOptions, scalar_param};
 use crate::optim::SetOptimizer;
@@ -576,19 +576,22 @@ impl Trainer {
             return Ok(report);
         }
         // Densification statistics.
-        if let Some(off) = &r.surface_offsets
-            && let Some(g) = off.grad(&grads)
-        {
-            let gv: Vec<f32> = g.into_data().convert::<f32>().into_vec().expect("f32");
-            self.stats_surface
-                .add(&gv, &r.surface_radii, view.size().0, view.size().1);
-        }
-        if let Some(off) = &r.interior_offsets
-            && let Some(g) = off.grad(&grads)
-        {
-            let gv: Vec<f32> = g.into_data().convert::<f32>().into_vec().expect("f32");
-            self.stats_interior
-                .add(&gv, &r.interior_radii, view.size().0, view.size().1);
+        let (w, h) = view.size();
+        for (offsets, radii, stats) in [
+            (
+                &r.surface_offsets,
+                &r.surface_radii,
+                &mut self.stats_surface,
+            ),
+            (
+                &r.interior_offsets,
+                &r.interior_radii,
+                &mut self.stats_interior,
+            ),
+        ] {
+            if let Some(g) = offsets.as_ref().and_then(|o| o.grad(&grads)) {
+                stats.add(&host_vec(g), radii, w, h);
+            }
         }
         // Adam.
         let rates: HashMap<ParamKind, f64> = ParamKind::ALL

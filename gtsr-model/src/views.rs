@@ -164,6 +164,15 @@ impl ViewTensors {
     }
 }
 
+/// Uploads every view of a split ([`ViewTensors::new`] with its index).
+pub fn upload_views(views: &[View], device: &Device) -> Result<Vec<ViewTensors>, ModelError> {
+    views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| ViewTensors::new(v, i, device))
+        .collect()
+}
+
 /// For each view, the other views whose viewing directions (towards the scene centre) lie
 /// within `max_angle_deg`, nearest first, at most 8 (PGSR).
 pub fn neighbours(cameras: &[Camera], max_angle_deg: f64) -> Vec<Vec<usize>> {

@@ -12,6 +12,7 @@ use gtsr_eval::{
 };
 use gtsr_model::checkpoint::write_atomic;
 use gtsr_model::export::write_splat_ply;
+use gtsr_model::gaussians::host_vec;
 use gtsr_model::model::Model;
 use gtsr_model::trainer::Trainer;
 use gtsr_model::views::ViewTensors;
@@ -41,14 +42,6 @@ pub struct Evaluation {
     pub extracted: Option<TriMesh>,
     /// Seconds spent evaluating.
     pub seconds: f64,
-}
-
-fn host(t: burn::tensor::Tensor<3>) -> Vec<f32> {
-    t.into_data().convert::<f32>().into_vec().expect("f32 data")
-}
-
-fn host2(t: burn::tensor::Tensor<2>) -> Vec<f32> {
-    t.into_data().convert::<f32>().into_vec().expect("f32 data")
 }
 
 /// Axis-aligned box around the surface Gaussians that matter (opacity at least 0.05; all of
@@ -108,10 +101,10 @@ pub fn extract_mesh(
     let mut tsdf = TsdfVolume::new(lo, hi, voxel, trunc)?;
     for (v, data) in trainer.views.iter().zip(&scene.train) {
         let g = trainer.model.render_depth(&v.camera, &v.rays)?;
-        let normal = host(g.normal);
-        let rays = host(v.rays.clone());
-        let mut depth = host2(g.depth);
-        let cov = host2(g.coverage);
+        let normal = host_vec(g.normal);
+        let rays = host_vec(v.rays.clone());
+        let mut depth = host_vec(g.depth);
+        let cov = host_vec(g.coverage);
         // The unbiased depth divides by -(N . r): where the blended normal is nearly
         // perpendicular to the ray (silhouettes, mixed pixels) it runs far behind the surface,
         // and fusing it would carve the surface away along that ray. Keep pixels whose normal
@@ -160,7 +153,7 @@ pub fn evaluate(
     for (v, data) in tests.iter().zip(&scene.test) {
         let (w, h) = v.size();
         let r = trainer.model.render(&v.camera, &v.rays, opts)?;
-        let img: Vec<f32> = host(r.c_sh).iter().map(|x| x.clamp(0.0, 1.0)).collect();
+        let img: Vec<f32> = host_vec(r.c_sh).iter().map(|x| x.clamp(0.0, 1.0)).collect();
         let pred = ImageRef::new(w, h, 3, &img);
         let gt_img = ImageRef::new(w, h, 3, &data.rgb);
         p += psnr(pred, gt_img, None)?.min(99.0);
@@ -173,7 +166,7 @@ pub fn evaluate(
             nm += 1;
         }
         if let Some(pbr) = r.c_pbr {
-            let img: Vec<f32> = host(pbr).iter().map(|x| x.clamp(0.0, 1.0)).collect();
+            let img: Vec<f32> = host_vec(pbr).iter().map(|x| x.clamp(0.0, 1.0)).collect();
             pp += psnr(ImageRef::new(w, h, 3, &img), gt_img, None)?.min(99.0);
             np += 1;
         }
@@ -238,11 +231,11 @@ fn write_strips(
             Some(g) => g,
             None => trainer.model.render_depth(&v.camera, &v.rays)?,
         };
-        let sh = host(r.c_sh);
-        let pbr = r.c_pbr.map(host);
-        let normal = host(geo.normal);
-        let depth = host2(geo.depth);
-        let cov = host2(geo.coverage);
+        let sh = host_vec(r.c_sh);
+        let pbr = r.c_pbr.map(host_vec);
+        let normal = host_vec(geo.normal);
+        let depth = host_vec(geo.depth);
+        let cov = host_vec(geo.coverage);
         let covered: Vec<f32> = depth
             .iter()
             .zip(&cov)

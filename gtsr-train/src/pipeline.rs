@@ -14,7 +14,7 @@ use gtsr_eval::{Timeline, TimelinePoint};
 use gtsr_model::checkpoint;
 use gtsr_model::config::{Decision, Init, Preset, TrainConfig, auto_components};
 use gtsr_model::trainer::{Trainer, initial_points};
-use gtsr_model::views::{ViewTensors, scene_evidence};
+use gtsr_model::views::{ViewTensors, scene_evidence, upload_views};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
@@ -261,24 +261,10 @@ pub fn run(args: &Args) -> Result<Outcome> {
     outputs::write_json(&args.out.join("config.json"), &resolved)?;
 
     let device = Device::ndarray().autodiff();
-    let views: Vec<ViewTensors> = scene
-        .train
-        .iter()
-        .enumerate()
-        .map(|(i, v)| {
-            ViewTensors::new(v, i, &device)
-                .with_context(|| format!("dataset {}", data_dir.display()))
-        })
-        .collect::<Result<_>>()?;
-    let tests: Vec<ViewTensors> = scene
-        .test
-        .iter()
-        .enumerate()
-        .map(|(i, v)| {
-            ViewTensors::new(v, i, &device)
-                .with_context(|| format!("dataset {}", data_dir.display()))
-        })
-        .collect::<Result<_>>()?;
+    let views = upload_views(&scene.train, &device)
+        .with_context(|| format!("dataset {}", data_dir.display()))?;
+    let tests = upload_views(&scene.test, &device)
+        .with_context(|| format!("dataset {}", data_dir.display()))?;
     let extent = camera_extent(&views);
     let ckpt_path = args.out.join("checkpoint.safetensors");
     let state_path = args.out.join("run_state.json");

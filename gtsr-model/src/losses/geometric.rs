@@ -5,7 +5,7 @@ use burn::tensor::{Bool, Int, Tensor, TensorData};
 
 use gtsr_render_kernels::Camera;
 
-use crate::geometry::{camera_tensors, normalize_rows, normals_from_depth};
+use crate::geometry::{camera_tensors, normals_from_depth};
 
 /// Single-view term: `sum_p w(p) |N_d(p) - N(p)|_1 / #valid`, with `N_d` the normal of the
 /// depth map, `N` the rendered normal (normalised) and `w` the edge weight of the ground truth.
@@ -224,9 +224,4 @@ pub fn interior_containment(
         .gather(0, idx)
         * on_screen.float().cast(dtype);
     ((d_at - z).clamp_min(0.0) * ok).sum() / (n.max(1) as f64)
-}
-
-/// Unit-length helper re-exported for callers that normalise rendered normals.
-pub fn unit(v: Tensor<2>) -> Tensor<2> {
-    normalize_rows(v)
 }

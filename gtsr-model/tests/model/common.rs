@@ -7,7 +7,7 @@ use gtsr_data::synthetic::{MaterialPreset, SceneConfig, ShapeKind, generate_scen
 use gtsr_data::{LoadOptions, Scene, load_scene};
 use gtsr_model::config::{Components, TrainConfig};
 use gtsr_model::trainer::{Trainer, initial_points};
-use gtsr_model::views::ViewTensors;
+use gtsr_model::views::{ViewTensors, upload_views};
 
 /// Generates and loads a 32x32 sphere of wax, 8 training and 2 test views, 8 spp.
 pub fn tiny_scene(dir: &Path) -> Scene {
@@ -26,12 +26,7 @@ pub fn device() -> Device {
 }
 
 pub fn views(scene: &Scene, device: &Device) -> Vec<ViewTensors> {
-    scene
-        .train
-        .iter()
-        .enumerate()
-        .map(|(i, v)| ViewTensors::new(v, i, device).expect("view"))
-        .collect()
+    upload_views(&scene.train, device).expect("views")
 }
 
 /// A small configuration: 60 steps, stage 2 from step 20, densification every 10 steps.

@@ -491,3 +491,23 @@ fn ssim_and_l1_behave() {
     let l: f32 = losses::l1(a.clone(), a.clone() + 0.1).into_scalar();
     assert!((l - 0.1).abs() < 1e-6);
 }
+
+#[test]
+fn initial_scales_are_the_mean_three_neighbour_distance() {
+    // A 5x5x5 grid of spacing 0.1: an inner point has six neighbours at 0.1.
+    let pts: Vec<[f32; 3]> = (0..125)
+        .map(|i| {
+            [
+                (i % 5) as f32 * 0.1,
+                ((i / 5) % 5) as f32 * 0.1,
+                (i / 25) as f32 * 0.1,
+            ]
+        })
+        .collect();
+    let s = gtsr_model::gaussians::knn_scales(&pts);
+    assert!((s[62] - 0.1).abs() < 1e-5, "centre point scale {}", s[62]);
+    assert!(
+        s.iter().all(|v| (*v - 0.1).abs() < 1e-5),
+        "every grid point has three neighbours at 0.1"
+    );
+}
