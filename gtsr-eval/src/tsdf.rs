@@ -16,6 +16,16 @@
 //!   `sdf` clamped to `truncation`, weight 1. Depth `0` or non-finite means no measurement.
 //! * Voxels with zero total weight stay unobserved; marching cubes makes no triangles next
 //!   to them, so unseen space never becomes a false wall.
+//! * With [`TsdfVolume::with_silhouette_carving`], the volume also keeps the visual-hull
+//!   field `max over views of (0.5 - mask(u, v)) * z / fx` (mask bilinear between pixel
+//!   centres, as [`crate::hull`]; scaled by the pixel footprint to approximate a distance).
+//!   The extracted field is the larger of the two, so the surface stays inside every
+//!   silhouette (the object is inside each of them) and is placed between voxels there as the
+//!   hull is; the depth maps add what silhouettes cannot see (concavities). Masked-out pixels
+//!   then update only the hull field, not the TSDF average (their `+truncation` votes pull the
+//!   average positive near every silhouette: on a trained wax_knot model dropping them took
+//!   the chamfer from 5.4e-3 to 3.2e-3). Points inside the hull that no depth map measured
+//!   count as inside (`-truncation`): where depth is missing the hull is the surface.
 
 use glam::Vec3;
 use gtsr_data::Camera;
@@ -23,6 +33,7 @@ use gtsr_data::ply::TriMesh;
 use rayon::prelude::*;
 
 use crate::error::{EvalError, Result};
+use crate::hull::bilinear;
 use crate::marching::{Grid, marching_cubes};
 
 /// Default truncation distance in voxels ([`TsdfVolume::new`] takes it in world units).
@@ -41,6 +52,10 @@ pub struct TsdfVolume {
     grid: Grid,
     weights: Vec<f32>,
     truncation: f32,
+    /// Per grid point: the visual-hull distance (positive outside some mask).
+    hull: Vec<f32>,
+    /// Whether [`TsdfVolume::extract_mesh`] applies `hull`.
+    silhouette_carving: bool,
 }
 
 impl TsdfVolume {
@@ -71,12 +86,45 @@ impl TsdfVolume {
             }
         }
         let grid = Grid::new(min, voxel, dims);
-        let weights = vec![0.0; grid.values.len()];
+        let n = grid.values.len();
+        let weights = vec![0.0; n];
         Ok(TsdfVolume {
             grid,
             weights,
             truncation,
+            hull: vec![f32::NEG_INFINITY; n],
+            silhouette_carving: false,
         })
+    }
+
+    /// Turns on silhouette carving (see the module documentation): a grid point outside any
+    /// view's mask ends up free space in [`TsdfVolume::extract_mesh`] and
+    /// [`TsdfVolume::carved_grid`].
+    pub fn with_silhouette_carving(mut self) -> Self {
+        self.silhouette_carving = true;
+        self
+    }
+
+    /// The fused field with silhouette carving applied (the same as [`TsdfVolume::grid`]
+    /// without it): the larger of the TSDF and the hull distance (clamped to the truncation),
+    /// points outside the hull observed, and points inside the hull that no depth map measured
+    /// at `-truncation` (inside: where depth is missing the hull is the surface).
+    pub fn carved_grid(&self) -> Grid {
+        let mut g = self.grid.clone();
+        if self.silhouette_carving {
+            for ((v, o), &d) in g.values.iter_mut().zip(&mut g.observed).zip(&self.hull) {
+                if d > 0.0 {
+                    *v = if *o { v.max(d) } else { d }.min(self.truncation);
+                    *o = true;
+                } else if !*o && d.is_finite() {
+                    // Inside every silhouette that sees it and never measured by a depth map:
+                    // the hull is the best bound there is, so it counts as inside.
+                    *v = -self.truncation;
+                    *o = true;
+                }
+            }
+        }
+        g
     }
 
     /// The fused field (values and observed flags).
@@ -126,13 +174,15 @@ impl TsdfVolume {
         let (origin, voxel, trunc) = (self.grid.origin, self.grid.voxel, self.truncation);
         let m = camera.world_to_camera;
         let (wf, hf) = (w as f32, h as f32);
+        let carving = self.silhouette_carving;
         self.grid
             .values
             .par_chunks_mut(plane)
             .zip(self.weights.par_chunks_mut(plane))
             .zip(self.grid.observed.par_chunks_mut(plane))
+            .zip(self.hull.par_chunks_mut(plane))
             .enumerate()
-            .for_each(|(k, ((values, weights), observed))| {
+            .for_each(|(k, (((values, weights), observed), hull))| {
                 let step = Vec3::from(m.matrix3.x_axis) * voxel;
                 for j in 0..ny {
                     let row = origin + voxel * Vec3::new(0.0, j as f32, k as f32);
@@ -150,7 +200,17 @@ impl TsdfVolume {
                             continue;
                         }
                         let pix = (v as usize).min(h - 1) * w + (u as usize).min(w - 1);
+                        if let Some(m) = mask {
+                            let d = (0.5 - bilinear(m, w, h, u, v)) * p.z / camera.fx;
+                            let id = i + nx * j;
+                            hull[id] = hull[id].max(d);
+                        }
                         let sdf = if mask.is_some_and(|m| m[pix] < 0.5) {
+                            if carving {
+                                // The hull field has it; a +truncation vote here would pull
+                                // every surface voxel near some view's silhouette outward.
+                                continue;
+                            }
                             trunc
                         } else {
                             let d = depth[pix];
@@ -177,6 +237,10 @@ impl TsdfVolume {
     /// The zero level set as a welded, outward-oriented mesh (empty when nothing crosses
     /// zero). Apply [`crate::mesh::largest_component`] to drop floaters.
     pub fn extract_mesh(&self) -> TriMesh {
-        marching_cubes(&self.grid, 0.0)
+        if self.silhouette_carving {
+            marching_cubes(&self.carved_grid(), 0.0)
+        } else {
+            marching_cubes(&self.grid, 0.0)
+        }
     }
 }

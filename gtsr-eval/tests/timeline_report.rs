@@ -73,13 +73,13 @@ fn markdown_table_formats_and_escapes() {
             fscore: Some(0.98765),
             psnr: Some(45.281),
             ssim: Some(0.99612),
-            wall_seconds: Some(9000.4),
+            seconds: Some(9000.4),
             gaussians: Some(312_000),
         },
         ReportRow {
             method: "PGSR".into(),
             scene: "bear".into(),
-            wall_seconds: Some(125.0),
+            seconds: Some(125.0),
             ..Default::default()
         },
     ];

@@ -119,3 +119,63 @@ fn visual_hull_of_a_sphere_contains_it_and_is_close() {
         Err(EvalError::SizeMismatch { .. })
     ));
 }
+
+#[test]
+fn silhouette_carving_keeps_the_surface_inside_every_mask() {
+    // Images of 32 px (a pixel is 0.045 wide at the sphere, 4.5 voxels), as coarse as training.
+    let (voxel, trunc) = (0.01, 0.12);
+    let cams = common::cameras_around(Vec3::ZERO, 2.0, 24, 40f32.to_radians(), 32);
+    let fuse = |depth_r: f32, mask_r: f32, carve: bool| {
+        let mut v = TsdfVolume::new(Vec3::splat(-0.7), Vec3::splat(0.7), voxel, trunc).unwrap();
+        if carve {
+            v = v.with_silhouette_carving();
+        }
+        for cam in &cams {
+            let (depth, _) = common::render_sphere(cam, Vec3::ZERO, depth_r);
+            let (_, mask) = common::render_sphere(cam, Vec3::ZERO, mask_r);
+            v.integrate(cam, &depth, Some(&mask)).unwrap();
+        }
+        v.extract_mesh()
+    };
+    let max_radius = |m: &gtsr_data::ply::TriMesh| {
+        m.positions
+            .iter()
+            .map(|p| p.length())
+            .fold(0.0f32, f32::max)
+    };
+    let sphere = icosphere(Vec3::ZERO, 0.4, 5);
+    // Exact depth and masks: carving costs nothing (the hull field is placed between pixels as
+    // the hull is, and the masked-out pixels no longer vote +truncation into the average).
+    let carved = fuse(0.4, 0.4, true);
+    let plain = fuse(0.4, 0.4, false);
+    let cd = chamfer(&carved, &sphere, 20_000, voxel, 0).unwrap();
+    let cd_plain = chamfer(&plain, &sphere, 20_000, voxel, 0).unwrap();
+    assert!(cd.chamfer < 0.5 * voxel as f64, "{cd:?}");
+    assert!(
+        cd.chamfer <= cd_plain.chamfer,
+        "{cd:?} against {cd_plain:?}"
+    );
+    // Depth of a sphere of radius 0.5 but masks of one of radius 0.4: the surface stays inside
+    // the masks' hull.
+    let carved = fuse(0.5, 0.4, true);
+    assert!(!carved.triangles.is_empty());
+    let masks: Vec<_> = cams
+        .iter()
+        .map(|c| (*c, common::render_sphere(c, Vec3::ZERO, 0.4).1))
+        .collect();
+    let views: Vec<_> = masks.iter().map(|(c, m)| (*c, m.as_slice())).collect();
+    let hull = visual_hull(&views, Vec3::splat(-0.7), Vec3::splat(0.7), 140).unwrap();
+    let (r_carved, r_hull, r_plain) = (
+        max_radius(&carved),
+        max_radius(&hull),
+        max_radius(&fuse(0.5, 0.4, false)),
+    );
+    assert!(
+        r_carved < r_hull + voxel,
+        "{r_carved} against the hull's {r_hull}"
+    );
+    assert!(
+        r_plain > r_hull + voxel,
+        "{r_plain} against the hull's {r_hull}"
+    );
+}

@@ -76,9 +76,20 @@ pub struct Args {
     /// TSDF voxel size (scene units); default: the scene radius / 128.
     #[arg(long)]
     pub voxel: Option<f32>,
-    /// TSDF truncation (scene units); default: 4 voxels.
+    /// TSDF truncation (scene units); default: the larger of 4 voxels and 6 training-pixel
+    /// footprints at the object (the trained depth is known to a few pixels).
     #[arg(long)]
     pub truncation: Option<f32>,
+    /// Longest image side of the depth maps fused into the mesh (the trained Gaussians are
+    /// rendered again at this size, with the dataset's masks at this size). Default: the training
+    /// resolution; at most the dataset's own size.
+    #[arg(long)]
+    pub mesh_resolution: Option<u32>,
+    /// Fuse the depth maps alone: without this, when every view has a mask, the TSDF keeps the
+    /// masks' visual hull too and the surface never leaves a silhouette (see gtsr-eval's
+    /// `TsdfVolume::with_silhouette_carving`). Shows what the rendered depth alone gives.
+    #[arg(long)]
+    pub no_silhouette_carving: bool,
     /// Save a checkpoint every this many steps (0: only at the end or on Ctrl-C).
     #[arg(long, default_value_t = 500)]
     pub checkpoint_every: usize,

@@ -20,15 +20,19 @@ pub struct BenchReconArgs {
     /// Where runs, the table and the plot go.
     #[arg(long, default_value = "bench-recon")]
     pub out: PathBuf,
-    /// Training steps per run.
-    #[arg(long, default_value_t = 3000)]
+    /// Training steps per run (the default is what the README's table used).
+    #[arg(long, default_value_t = 1500)]
     pub iterations: usize,
-    /// Longest image side.
-    #[arg(long, default_value_t = 128)]
+    /// Longest image side (the default is what the README's table used).
+    #[arg(long, default_value_t = 64)]
     pub resolution: u32,
-    /// Methods (gtsr-train presets); the visual hull is always added.
-    #[arg(long, num_args = 1.., default_values_t = ["full".to_string(), "no-pbr".into(), "no-fresnel".into(), "no-interior".into(), "pgsr".into()])]
+    /// Methods (gtsr-train presets; `--methods` alone: none); the visual hull is always added.
+    #[arg(long, num_args = 0.., default_values_t = ["full".to_string(), "no-pbr".into(), "no-fresnel".into(), "no-interior".into(), "pgsr".into()])]
     pub methods: Vec<String>,
+    /// Re-extract and re-evaluate runs already finished in `--out` (same `--iterations`)
+    /// instead of training them again: for changes to mesh extraction or evaluation.
+    #[arg(long)]
+    pub reuse: bool,
     /// Visual hull resolution (voxels along the longest side).
     #[arg(long, default_value_t = 192)]
     pub hull_resolution: usize,
@@ -40,6 +44,7 @@ fn target_dir() -> PathBuf {
 
 #[derive(serde::Deserialize)]
 struct Metrics {
+    train_seconds: f64,
     test_psnr: f64,
     test_ssim: f64,
     surface_gaussians: u64,
@@ -85,7 +90,76 @@ fn hull_row(scene_dir: &Path, name: &str, resolution: u32, hull_res: usize) -> R
         fscore: Some(m.fscore),
         psnr: None,
         ssim: None,
-        wall_seconds: Some(t0.elapsed().as_secs_f64()),
+        seconds: Some(t0.elapsed().as_secs_f64()),
+        gaussians: None,
+    })
+}
+
+/// Whether `run` holds a finished gtsr-train run of `iterations` steps.
+fn finished(run: &Path, iterations: usize) -> bool {
+    #[derive(serde::Deserialize)]
+    struct Done {
+        iterations: usize,
+    }
+    run.join("checkpoint.safetensors").is_file()
+        && std::fs::read_to_string(run.join("metrics.json"))
+            .ok()
+            .and_then(|s| serde_json::from_str::<Done>(&s).ok())
+            .is_some_and(|d| d.iterations == iterations)
+}
+
+/// The same trained model fused from its depth maps alone (`--no-silhouette-carving`, in a
+/// copy of the run): the mask-carved number says how good the mesh is, this one how much of
+/// it the rendered depth carries on its own.
+fn depth_only_row(
+    exe: &Path,
+    scene_dir: &Path,
+    run: &Path,
+    name: &str,
+    method: &str,
+    args: &BenchReconArgs,
+) -> Result<ReportRow> {
+    let out = run.with_file_name(format!("{method}-depth-only"));
+    if out.exists() {
+        std::fs::remove_dir_all(&out).with_context(|| format!("removing {}", out.display()))?;
+    }
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    for f in [
+        "checkpoint.safetensors",
+        "run_state.json",
+        "config.json",
+        "error_vs_time.csv",
+    ] {
+        std::fs::copy(run.join(f), out.join(f))
+            .with_context(|| format!("copying {} to {}", run.join(f).display(), out.display()))?;
+    }
+    let t0 = Instant::now();
+    let status = Command::new(exe)
+        .arg("--data")
+        .arg(scene_dir)
+        .arg("--out")
+        .arg(&out)
+        .args(["--preset", method, "--resume", "--no-silhouette-carving"])
+        .args(["--iterations", &args.iterations.to_string()])
+        .args(["--resolution", &args.resolution.to_string()])
+        .status()
+        .with_context(|| format!("running {}", exe.display()))?;
+    if !status.success() {
+        bail!("{name} / {method} depth only: gtsr-train failed ({status})");
+    }
+    let mpath = out.join("metrics.json");
+    let m: Metrics = serde_json::from_str(
+        &std::fs::read_to_string(&mpath).with_context(|| format!("reading {}", mpath.display()))?,
+    )
+    .with_context(|| format!("parsing {}", mpath.display()))?;
+    Ok(ReportRow {
+        method: format!("{method}, depth only (no silhouettes in the fusion)"),
+        scene: name.into(),
+        chamfer: m.mesh.as_ref().map(|x| x.chamfer),
+        fscore: m.mesh.as_ref().map(|x| x.fscore),
+        psnr: None,
+        ssim: None,
+        seconds: Some(t0.elapsed().as_secs_f64()),
         gaussians: None,
     })
 }
@@ -110,19 +184,31 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
             .map_or_else(|| "scene".to_string(), |s| s.to_string_lossy().into_owned());
         for method in &args.methods {
             let out = args.out.join(&name).join(method);
-            println!("== {name} / {method}");
-            let t0 = Instant::now();
-            let status = Command::new(&exe)
-                .arg("--data")
+            // A finished run of the same length is re-extracted and re-evaluated instead of
+            // trained again (gtsr-train --resume on a finished run).
+            let reuse = args.reuse && finished(&out, args.iterations);
+            println!(
+                "== {name} / {method}{}",
+                if reuse {
+                    " (reusing the trained run)"
+                } else {
+                    ""
+                }
+            );
+            let mut cmd = Command::new(&exe);
+            cmd.arg("--data")
                 .arg(scene_dir)
                 .arg("--out")
                 .arg(&out)
                 .args(["--preset", method])
                 .args(["--iterations", &args.iterations.to_string()])
-                .args(["--resolution", &args.resolution.to_string()])
+                .args(["--resolution", &args.resolution.to_string()]);
+            if reuse {
+                cmd.arg("--resume");
+            }
+            let status = cmd
                 .status()
                 .with_context(|| format!("running {}", exe.display()))?;
-            let wall = t0.elapsed().as_secs_f64();
             if !status.success() {
                 bail!("{name} / {method}: gtsr-train failed ({status})");
             }
@@ -139,11 +225,14 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                 fscore: m.mesh.as_ref().map(|x| x.fscore),
                 psnr: Some(m.test_psnr),
                 ssim: Some(m.test_ssim),
-                wall_seconds: Some(wall),
+                seconds: Some(m.train_seconds),
                 gaussians: Some(m.surface_gaussians + m.interior_gaussians),
             });
             if let Ok(tl) = Timeline::read_csv(&out.join("error_vs_time.csv")) {
                 series.push((format!("{name} {method}"), tl));
+            }
+            if m.mesh.is_some() {
+                rows.push(depth_only_row(&exe, scene_dir, &out, &name, method, args)?);
             }
         }
         println!("== {name} / visual hull");

@@ -1,0 +1,150 @@
+//! The binary end to end on a tiny generated scene, and its answers to bad input.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use gtsr_data::synthetic::{MaterialPreset, SceneConfig, ShapeKind, generate_scene};
+
+fn gtsr_train(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_gtsr-train"))
+        .args(args)
+        .output()
+        .expect("running gtsr-train")
+}
+
+fn tiny_scene(dir: &Path) {
+    let mut c = SceneConfig::new(ShapeKind::Sphere, MaterialPreset::Wax);
+    c.resolution = 24;
+    c.n_train = 12;
+    c.n_test = 2;
+    c.spp = 4;
+    c.seed = 3;
+    generate_scene(dir, &c, |_| {}).expect("generating the tiny scene");
+}
+
+fn text(o: &Output) -> String {
+    format!(
+        "status {:?}\nstdout:\n{}\nstderr:\n{}",
+        o.status,
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+#[test]
+fn trains_a_tiny_scene_and_writes_every_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("scene");
+    tiny_scene(&scene);
+    let out = tmp.path().join("out");
+    let o = gtsr_train(&[
+        "--data",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--iterations",
+        "40",
+        "--resolution",
+        "24",
+        "--eval-points",
+        "2",
+        "--checkpoint-every",
+        "0",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    for f in [
+        "mesh.ply",
+        "gaussians.ply",
+        "metrics.json",
+        "config.json",
+        "error_vs_time.csv",
+        "error_vs_time.png",
+        "checkpoint.safetensors",
+        "renders/test_000.png",
+        "renders/test_001.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing\n{}", text(&o));
+    }
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(m["iterations"], 40);
+    let psnr = m["test_psnr"].as_f64().unwrap();
+    assert!(psnr.is_finite() && psnr > 5.0, "{m}");
+    let chamfer = m["mesh"]["chamfer"].as_f64().unwrap();
+    assert!(chamfer.is_finite() && chamfer > 0.0, "{m}");
+    // Every view has a mask, so the surface set starts inside them and the mask term is on.
+    let c: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("config.json")).unwrap()).unwrap();
+    assert_eq!(c["train"]["init"], "mask-carved", "{c}");
+    assert_eq!(c["train"]["weights"]["mask"], 1.0, "{c}");
+    // The mesh is a closed surface near the unit-radius sphere.
+    let mesh = gtsr_data::ply::read_ply(&out.join("mesh.ply")).unwrap();
+    assert!(!mesh.triangles.is_empty());
+
+    // --resume on a finished run re-extracts and re-evaluates without training further.
+    let o = gtsr_train(&[
+        "--data",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--iterations",
+        "40",
+        "--resolution",
+        "24",
+        "--resume",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+}
+
+#[test]
+fn bad_input_is_an_error_naming_the_problem() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let missing = tmp.path().join("no-such-scene");
+    let o = gtsr_train(&[
+        "--data",
+        missing.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("no-such-scene"), "{err}");
+
+    // A transforms file that is not JSON.
+    let bad = tmp.path().join("bad");
+    std::fs::create_dir_all(&bad).unwrap();
+    std::fs::write(bad.join("transforms_train.json"), "{ not json").unwrap();
+    std::fs::write(bad.join("transforms_test.json"), "{ not json").unwrap();
+    let o = gtsr_train(&[
+        "--data",
+        bad.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("transforms_"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+
+    // An unknown preset and zero iterations, on a good scene.
+    let scene = tmp.path().join("scene");
+    tiny_scene(&scene);
+    for (flag, value, word) in [
+        ("--preset", "nope", "nope"),
+        ("--iterations", "0", "iterations"),
+    ] {
+        let o = gtsr_train(&[
+            "--data",
+            scene.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            flag,
+            value,
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(word), "{err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+}
