@@ -76,8 +76,8 @@ pub struct Args {
     /// TSDF voxel size (scene units); default: the scene radius / 128.
     #[arg(long)]
     pub voxel: Option<f32>,
-    /// TSDF truncation (scene units); default: the larger of 4 voxels and 6 training-pixel
-    /// footprints at the object (the trained depth is known to a few pixels).
+    /// TSDF truncation (scene units); default: the larger of 32 voxels (a quarter of the
+    /// radius) and 6 training-pixel footprints at the object.
     #[arg(long)]
     pub truncation: Option<f32>,
     /// Longest image side of the depth maps fused into the mesh (the trained Gaussians are

@@ -33,13 +33,14 @@ pub struct MeshSettings {
     pub silhouette_carving: bool,
 }
 
-/// The default truncation: the larger of [`gtsr_eval::tsdf::DEFAULT_TRUNCATION_VOXELS`] voxels
-/// and [`TRUNCATION_FOOTPRINTS`] pixel footprints of the *training* images at the box centre
-/// (median over the views). The trained depth is only as good as the images it was fitted to,
-/// and a truncation below its error erodes the object (KinectFusion drops observations far
-/// behind the measured depth but keeps those in front, so large errors count on one side
-/// only). Measured on one wax_knot model trained at 64 px (footprint 0.045), chamfer x1e3:
-/// truncation 0.06: 28.7, 0.12: 19.7, 0.25: 2.29, 0.4: 2.29.
+/// The default truncation: the larger of [`TRUNCATION_VOXELS`] voxels (a quarter of the
+/// radius at the default voxel) and [`TRUNCATION_FOOTPRINTS`] pixel footprints of the
+/// *training* images at the box centre (median over the views). A truncation below the error
+/// of the rendered depth erodes the object (KinectFusion drops observations far behind the
+/// measured depth but keeps those in front, so large errors count on one side only), and that
+/// error is not one pixel wide. Measured on wax_knot, chamfer x1e3, with the models of the
+/// README's table: trained at 64 px (footprint 0.045), truncation 0.06: 28.7, 0.12: 19.7,
+/// 0.25: 2.29, 0.4: 2.29; trained at 128 px, 0.13 (6 footprints): 7.61, 0.27: 2.51.
 fn default_truncation(voxel: f32, centre: Vec3, cameras: &[&gtsr_data::Camera]) -> f32 {
     let mut footprints: Vec<f32> = cameras
         .iter()
@@ -51,11 +52,14 @@ fn default_truncation(voxel: f32, centre: Vec3, cameras: &[&gtsr_data::Camera]) 
         .collect();
     footprints.sort_by(f32::total_cmp);
     let footprint = footprints.get(footprints.len() / 2).copied().unwrap_or(0.0);
-    (gtsr_eval::tsdf::DEFAULT_TRUNCATION_VOXELS * voxel).max(TRUNCATION_FOOTPRINTS * footprint)
+    (TRUNCATION_VOXELS * voxel).max(TRUNCATION_FOOTPRINTS * footprint)
 }
 
 /// Pixel footprints in the default truncation.
 const TRUNCATION_FOOTPRINTS: f32 = 6.0;
+
+/// Voxels in the default truncation.
+const TRUNCATION_VOXELS: f32 = 32.0;
 
 /// One evaluation.
 pub struct Evaluation {
@@ -611,7 +615,7 @@ mod tests {
         assert!((t64 - 6.0 * 4.0 / c64.fx).abs() < 1e-4, "{t64}");
         let c256 = cam(256);
         // Fine images: the voxel floor takes over.
-        let t = default_truncation(0.05, Vec3::ZERO, &[&c256]);
-        assert!((t - 0.2).abs() < 1e-6, "{t}");
+        let t = default_truncation(0.01, Vec3::ZERO, &[&c256]);
+        assert!((t - 0.32).abs() < 1e-6, "{t}");
     }
 }
