@@ -9,47 +9,12 @@
 use std::time::Instant;
 
 use glam::Vec3;
-use gtsr_data::Camera;
 use gtsr_eval::mesh::{component_sizes, icosphere, is_closed};
 use gtsr_eval::{TsdfVolume, chamfer, largest_component};
 
-/// `n` cameras on a Fibonacci sphere of radius `distance` around `target`.
-fn cameras_around(target: Vec3, distance: f32, n: usize, fov_x: f32, size: u32) -> Vec<Camera> {
-    let golden = std::f32::consts::PI * (3.0 - 5.0f32.sqrt());
-    (0..n)
-        .map(|k| {
-            let y = 1.0 - 2.0 * (k as f32 + 0.5) / n as f32;
-            let r = (1.0 - y * y).sqrt();
-            let phi = golden * k as f32;
-            let dir = Vec3::new(r * phi.cos(), y, r * phi.sin());
-            let up = if dir.y.abs() > 0.9 { Vec3::X } else { Vec3::Y };
-            Camera::look_at(target + dir * distance, target, up, fov_x, size, size)
-        })
-        .collect()
-}
-
-/// Z-depth (0 where the ray misses) and mask of a sphere at each pixel centre.
-fn render_sphere(cam: &Camera, centre: Vec3, radius: f32) -> (Vec<f32>, Vec<f32>) {
-    let c = cam.world_to_camera.transform_point3(centre);
-    let (w, h) = (cam.width as usize, cam.height as usize);
-    let mut depth = vec![0.0; w * h];
-    let mut mask = vec![0.0; w * h];
-    for j in 0..h {
-        for i in 0..w {
-            let d = cam.camera_direction(i as f32 + 0.5, j as f32 + 0.5);
-            let (a, b) = (d.length_squared(), d.dot(c));
-            let disc = b * b - a * (c.length_squared() - radius * radius);
-            if disc >= 0.0 {
-                let s = (b - disc.sqrt()) / a;
-                if s > 0.0 {
-                    depth[j * w + i] = s;
-                    mask[j * w + i] = 1.0;
-                }
-            }
-        }
-    }
-    (depth, mask)
-}
+#[path = "../tests/common/mod.rs"]
+mod common;
+use common::{cameras_around, render_sphere};
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<usize> = std::env::args()

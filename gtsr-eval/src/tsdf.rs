@@ -52,10 +52,9 @@ pub struct TsdfVolume {
     grid: Grid,
     weights: Vec<f32>,
     truncation: f32,
-    /// Per grid point: the visual-hull distance (positive outside some mask).
-    hull: Vec<f32>,
-    /// Whether [`TsdfVolume::extract_mesh`] applies `hull`.
-    silhouette_carving: bool,
+    /// With silhouette carving, per grid point: the visual-hull distance (positive outside
+    /// some mask).
+    hull: Option<Vec<f32>>,
 }
 
 impl TsdfVolume {
@@ -92,8 +91,7 @@ impl TsdfVolume {
             grid,
             weights,
             truncation,
-            hull: vec![f32::NEG_INFINITY; n],
-            silhouette_carving: false,
+            hull: None,
         })
     }
 
@@ -101,7 +99,7 @@ impl TsdfVolume {
     /// view's mask ends up free space in [`TsdfVolume::extract_mesh`] and
     /// [`TsdfVolume::carved_grid`].
     pub fn with_silhouette_carving(mut self) -> Self {
-        self.silhouette_carving = true;
+        self.hull = Some(vec![f32::NEG_INFINITY; self.grid.values.len()]);
         self
     }
 
@@ -111,8 +109,8 @@ impl TsdfVolume {
     /// at `-truncation` (inside: where depth is missing the hull is the surface).
     pub fn carved_grid(&self) -> Grid {
         let mut g = self.grid.clone();
-        if self.silhouette_carving {
-            for ((v, o), &d) in g.values.iter_mut().zip(&mut g.observed).zip(&self.hull) {
+        if let Some(hull) = &self.hull {
+            for ((v, o), &d) in g.values.iter_mut().zip(&mut g.observed).zip(hull) {
                 if d > 0.0 {
                     *v = if *o { v.max(d) } else { d }.min(self.truncation);
                     *o = true;
@@ -174,13 +172,18 @@ impl TsdfVolume {
         let (origin, voxel, trunc) = (self.grid.origin, self.grid.voxel, self.truncation);
         let m = camera.world_to_camera;
         let (wf, hf) = (w as f32, h as f32);
-        let carving = self.silhouette_carving;
+        let carving = self.hull.is_some();
+        // One hull slice per z-slice when carving, none otherwise.
+        let mut hull_slices: Vec<Option<&mut [f32]>> = match &mut self.hull {
+            Some(hull) => hull.chunks_mut(plane).map(Some).collect(),
+            None => (0..self.grid.dims[2]).map(|_| None).collect(),
+        };
         self.grid
             .values
             .par_chunks_mut(plane)
             .zip(self.weights.par_chunks_mut(plane))
             .zip(self.grid.observed.par_chunks_mut(plane))
-            .zip(self.hull.par_chunks_mut(plane))
+            .zip(hull_slices.par_iter_mut())
             .enumerate()
             .for_each(|(k, (((values, weights), observed), hull))| {
                 let step = Vec3::from(m.matrix3.x_axis) * voxel;
@@ -200,7 +203,7 @@ impl TsdfVolume {
                             continue;
                         }
                         let pix = (v as usize).min(h - 1) * w + (u as usize).min(w - 1);
-                        if let Some(m) = mask {
+                        if let (Some(m), Some(hull)) = (mask, hull.as_deref_mut()) {
                             let d = (0.5 - bilinear(m, w, h, u, v)) * p.z / camera.fx;
                             let id = i + nx * j;
                             hull[id] = hull[id].max(d);
@@ -237,7 +240,7 @@ impl TsdfVolume {
     /// The zero level set as a welded, outward-oriented mesh (empty when nothing crosses
     /// zero). Apply [`crate::mesh::largest_component`] to drop floaters.
     pub fn extract_mesh(&self) -> TriMesh {
-        if self.silhouette_carving {
+        if self.hull.is_some() {
             marching_cubes(&self.carved_grid(), 0.0)
         } else {
             marching_cubes(&self.grid, 0.0)

@@ -66,12 +66,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     config.init = init;
     let device = Device::ndarray().autodiff();
     let views = upload_views(&scene.train, &device)?;
-    let masks: Vec<_> = views
-        .iter()
-        .zip(&scene.train)
-        .map(|(v, s)| (v.camera.clone(), s.mask.clone()))
-        .collect();
-    let points = initial_points(&config, &masks)?;
+    let points = initial_points(&config, &views, &scene.train)?;
     let mut trainer = Trainer::new(config, views, 1.0, &points, &device)?;
     let t0 = Instant::now();
     for i in 0..iterations {

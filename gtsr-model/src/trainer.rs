@@ -149,11 +149,18 @@ fn project_host(cam: &gtsr_render_kernels::Camera, p: [f32; 3]) -> Option<(f64, 
 }
 
 /// Initial surface points: uniform in a ball, or (mask-carved) only those whose projection
-/// lies inside every training mask that sees them. Masks are read from the host views.
+/// lies inside every training mask that sees them. `views` and `hosts` are the same views, on
+/// the device and on the host (the masks are read from the host views).
 pub fn initial_points(
     config: &TrainConfig,
-    masks: &[(gtsr_render_kernels::Camera, Option<Vec<f32>>)],
+    views: &[ViewTensors],
+    hosts: &[gtsr_data::View],
 ) -> Result<Vec<[f32; 3]>, ModelError> {
+    let masks: Vec<(&gtsr_render_kernels::Camera, Option<&Vec<f32>>)> = views
+        .iter()
+        .zip(hosts)
+        .map(|(v, h)| (&v.camera, h.mask.as_ref()))
+        .collect();
     let mut rng = step_rng(config.seed, 0, RNG_INIT);
     let n = config.init_surface;
     match config.init {

@@ -31,6 +31,9 @@ pub struct MeshSettings {
     pub fusion_views: Vec<gtsr_data::View>,
     /// Keep the masks' visual hull in the TSDF (when every view has a mask).
     pub silhouette_carving: bool,
+    /// The mesh box from the masks ([`hull_bounds`], computed once per run); `None`: from the
+    /// surface Gaussians at each extraction.
+    pub bounds: Option<(Vec3, Vec3)>,
 }
 
 /// The default truncation: the larger of [`TRUNCATION_VOXELS`] voxels (a quarter of the
@@ -115,7 +118,7 @@ fn mesh_bounds(model: &Model) -> (Vec3, Vec3) {
 /// voxels; `None` without masks. The object is inside every mask, so the box cannot cut it
 /// off, whatever the opacity of its surface Gaussians (the Gaussian box keeps only those of
 /// opacity 0.05 and more).
-fn hull_bounds(views: &[gtsr_data::View]) -> Result<Option<(Vec3, Vec3)>> {
+pub fn hull_bounds(views: &[gtsr_data::View]) -> Result<Option<(Vec3, Vec3)>> {
     let masked: Vec<(gtsr_data::Camera, &[f32])> = views
         .iter()
         .filter_map(|v| v.mask.as_deref().map(|m| (v.camera, m)))
@@ -175,7 +178,9 @@ pub fn extract_mesh(
     } else {
         settings.fusion_views.iter().collect()
     };
-    let (lo, hi) = hull_bounds(&scene.train)?.unwrap_or_else(|| mesh_bounds(&trainer.model));
+    let (lo, hi) = settings
+        .bounds
+        .unwrap_or_else(|| mesh_bounds(&trainer.model));
     let radius = 0.5 * (hi - lo).max_element();
     let mut voxel = settings
         .voxel

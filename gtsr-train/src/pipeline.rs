@@ -227,13 +227,13 @@ fn fusion_views(
         data_dir,
         &LoadOptions {
             downscale: Downscale::MaxSide(wanted),
-            load_val: false,
             ..opts.clone()
         },
     )
     .with_context(|| format!("loading {} for mesh fusion", data_dir.display()))?;
-    let size = fusion.train[0].width().max(fusion.train[0].height());
-    if size <= trained || fusion.train.len() != scene.train.len() {
+    if fusion.train.len() != scene.train.len()
+        || fusion.train[0].width().max(fusion.train[0].height()) <= trained
+    {
         return Ok(Vec::new());
     }
     println!(
@@ -327,12 +327,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
         println!("resuming at step {} of {}", t.step, t.config.iterations);
         (t, state.train_seconds, tl)
     } else {
-        let masks: Vec<_> = views
-            .iter()
-            .zip(&scene.train)
-            .map(|(v, s)| (v.camera.clone(), s.mask.clone()))
-            .collect();
-        let points = initial_points(&config, &masks)?;
+        let points = initial_points(&config, &views, &scene.train)?;
         (
             Trainer::new(config, views, extent, &points, &device)?,
             0.0,
@@ -358,6 +353,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
         truncation: args.truncation,
         fusion_views: fusion_views(args, &data_dir, &opts, &scene)?,
         silhouette_carving: !args.no_silhouette_carving,
+        bounds: outputs::hull_bounds(&scene.train)?,
     };
 
     let stop = Arc::new(AtomicBool::new(false));

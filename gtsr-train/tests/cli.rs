@@ -5,8 +5,13 @@ use std::process::{Command, Output};
 
 use gtsr_data::synthetic::{MaterialPreset, SceneConfig, ShapeKind, generate_scene};
 
-fn gtsr_train(args: &[&str]) -> Output {
+/// Runs gtsr-train on `data` with outputs in `out`, plus `args`.
+fn gtsr_train(data: &Path, out: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_gtsr-train"))
+        .arg("--data")
+        .arg(data)
+        .arg("--out")
+        .arg(out)
         .args(args)
         .output()
         .expect("running gtsr-train")
@@ -37,20 +42,20 @@ fn trains_a_tiny_scene_and_writes_every_output() {
     let scene = tmp.path().join("scene");
     tiny_scene(&scene);
     let out = tmp.path().join("out");
-    let o = gtsr_train(&[
-        "--data",
-        scene.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--iterations",
-        "40",
-        "--resolution",
-        "24",
-        "--eval-points",
-        "2",
-        "--checkpoint-every",
-        "0",
-    ]);
+    let o = gtsr_train(
+        &scene,
+        &out,
+        &[
+            "--iterations",
+            "40",
+            "--resolution",
+            "24",
+            "--eval-points",
+            "2",
+            "--checkpoint-every",
+            "0",
+        ],
+    );
     assert!(o.status.success(), "{}", text(&o));
     for f in [
         "mesh.ply",
@@ -77,22 +82,16 @@ fn trains_a_tiny_scene_and_writes_every_output() {
         serde_json::from_str(&std::fs::read_to_string(out.join("config.json")).unwrap()).unwrap();
     assert_eq!(c["train"]["init"], "mask-carved", "{c}");
     assert_eq!(c["train"]["weights"]["mask"], 1.0, "{c}");
-    // The mesh is a closed surface near the unit-radius sphere.
+    // The mesh is not empty.
     let mesh = gtsr_data::ply::read_ply(&out.join("mesh.ply")).unwrap();
     assert!(!mesh.triangles.is_empty());
 
     // --resume on a finished run re-extracts and re-evaluates without training further.
-    let o = gtsr_train(&[
-        "--data",
-        scene.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--iterations",
-        "40",
-        "--resolution",
-        "24",
-        "--resume",
-    ]);
+    let o = gtsr_train(
+        &scene,
+        &out,
+        &["--iterations", "40", "--resolution", "24", "--resume"],
+    );
     assert!(o.status.success(), "{}", text(&o));
 }
 
@@ -101,12 +100,7 @@ fn bad_input_is_an_error_naming_the_problem() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out");
     let missing = tmp.path().join("no-such-scene");
-    let o = gtsr_train(&[
-        "--data",
-        missing.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = gtsr_train(&missing, &out, &[]);
     assert_eq!(o.status.code(), Some(1), "{}", text(&o));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("no-such-scene"), "{err}");
@@ -116,12 +110,7 @@ fn bad_input_is_an_error_naming_the_problem() {
     std::fs::create_dir_all(&bad).unwrap();
     std::fs::write(bad.join("transforms_train.json"), "{ not json").unwrap();
     std::fs::write(bad.join("transforms_test.json"), "{ not json").unwrap();
-    let o = gtsr_train(&[
-        "--data",
-        bad.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = gtsr_train(&bad, &out, &[]);
     assert_eq!(o.status.code(), Some(1), "{}", text(&o));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("transforms_"), "{err}");
@@ -134,14 +123,7 @@ fn bad_input_is_an_error_naming_the_problem() {
         ("--preset", "nope", "nope"),
         ("--iterations", "0", "iterations"),
     ] {
-        let o = gtsr_train(&[
-            "--data",
-            scene.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            flag,
-            value,
-        ]);
+        let o = gtsr_train(&scene, &out, &[flag, value]);
         assert_eq!(o.status.code(), Some(1), "{}", text(&o));
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(err.contains(word), "{err}");

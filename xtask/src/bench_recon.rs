@@ -44,6 +44,7 @@ fn target_dir() -> PathBuf {
 
 #[derive(serde::Deserialize)]
 struct Metrics {
+    iterations: usize,
     train_seconds: f64,
     test_psnr: f64,
     test_ssim: f64,
@@ -95,17 +96,47 @@ fn hull_row(scene_dir: &Path, name: &str, resolution: u32, hull_res: usize) -> R
     })
 }
 
+/// The `metrics.json` of a gtsr-train run.
+fn read_metrics(run: &Path) -> Result<Metrics> {
+    let path = run.join("metrics.json");
+    serde_json::from_str(
+        &std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?,
+    )
+    .with_context(|| format!("parsing {}", path.display()))
+}
+
 /// Whether `run` holds a finished gtsr-train run of `iterations` steps.
 fn finished(run: &Path, iterations: usize) -> bool {
-    #[derive(serde::Deserialize)]
-    struct Done {
-        iterations: usize,
-    }
     run.join("checkpoint.safetensors").is_file()
-        && std::fs::read_to_string(run.join("metrics.json"))
-            .ok()
-            .and_then(|s| serde_json::from_str::<Done>(&s).ok())
-            .is_some_and(|d| d.iterations == iterations)
+        && read_metrics(run).is_ok_and(|m| m.iterations == iterations)
+}
+
+/// Runs gtsr-train with `method` on `scene_dir` into `out` (with the benchmark's steps and
+/// resolution, plus `extra`) and returns its metrics; `what` names the run in errors.
+fn run_gtsr_train(
+    exe: &Path,
+    scene_dir: &Path,
+    out: &Path,
+    method: &str,
+    args: &BenchReconArgs,
+    extra: &[&str],
+    what: &str,
+) -> Result<Metrics> {
+    let status = Command::new(exe)
+        .arg("--data")
+        .arg(scene_dir)
+        .arg("--out")
+        .arg(out)
+        .args(["--preset", method])
+        .args(["--iterations", &args.iterations.to_string()])
+        .args(["--resolution", &args.resolution.to_string()])
+        .args(extra)
+        .status()
+        .with_context(|| format!("running {}", exe.display()))?;
+    if !status.success() {
+        bail!("{what}: gtsr-train failed ({status})");
+    }
+    read_metrics(out)
 }
 
 /// The same trained model fused from its depth maps alone (`--no-silhouette-carving`, in a
@@ -134,24 +165,15 @@ fn depth_only_row(
             .with_context(|| format!("copying {} to {}", run.join(f).display(), out.display()))?;
     }
     let t0 = Instant::now();
-    let status = Command::new(exe)
-        .arg("--data")
-        .arg(scene_dir)
-        .arg("--out")
-        .arg(&out)
-        .args(["--preset", method, "--resume", "--no-silhouette-carving"])
-        .args(["--iterations", &args.iterations.to_string()])
-        .args(["--resolution", &args.resolution.to_string()])
-        .status()
-        .with_context(|| format!("running {}", exe.display()))?;
-    if !status.success() {
-        bail!("{name} / {method} depth only: gtsr-train failed ({status})");
-    }
-    let mpath = out.join("metrics.json");
-    let m: Metrics = serde_json::from_str(
-        &std::fs::read_to_string(&mpath).with_context(|| format!("reading {}", mpath.display()))?,
-    )
-    .with_context(|| format!("parsing {}", mpath.display()))?;
+    let m = run_gtsr_train(
+        exe,
+        scene_dir,
+        &out,
+        method,
+        args,
+        &["--resume", "--no-silhouette-carving"],
+        &format!("{name} / {method} depth only"),
+    )?;
     Ok(ReportRow {
         method: format!("{method}, depth only (no silhouettes in the fusion)"),
         scene: name.into(),
@@ -195,29 +217,16 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                     ""
                 }
             );
-            let mut cmd = Command::new(&exe);
-            cmd.arg("--data")
-                .arg(scene_dir)
-                .arg("--out")
-                .arg(&out)
-                .args(["--preset", method])
-                .args(["--iterations", &args.iterations.to_string()])
-                .args(["--resolution", &args.resolution.to_string()]);
-            if reuse {
-                cmd.arg("--resume");
-            }
-            let status = cmd
-                .status()
-                .with_context(|| format!("running {}", exe.display()))?;
-            if !status.success() {
-                bail!("{name} / {method}: gtsr-train failed ({status})");
-            }
-            let mpath = out.join("metrics.json");
-            let m: Metrics = serde_json::from_str(
-                &std::fs::read_to_string(&mpath)
-                    .with_context(|| format!("reading {}", mpath.display()))?,
-            )
-            .with_context(|| format!("parsing {}", mpath.display()))?;
+            let extra: &[&str] = if reuse { &["--resume"] } else { &[] };
+            let m = run_gtsr_train(
+                &exe,
+                scene_dir,
+                &out,
+                method,
+                args,
+                extra,
+                &format!("{name} / {method}"),
+            )?;
             rows.push(ReportRow {
                 method: method.clone(),
                 scene: name.clone(),

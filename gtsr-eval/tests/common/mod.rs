@@ -1,18 +1,18 @@
-//! Shared test helpers: cameras around a sphere and analytic depth maps / masks.
+//! Shared test helpers (also used by the `sphere_tsdf` example): cameras around a sphere and
+//! analytic depth maps / masks.
 #![allow(dead_code)]
 
 use glam::Vec3;
 use gtsr_data::Camera;
+use gtsr_data::synthetic::writer::fibonacci_sphere;
 
-/// `n` cameras on a Fibonacci sphere of radius `distance` around `target`, looking at it.
+/// `n` cameras on a Fibonacci sphere of radius `distance` around `target` (pole along +y),
+/// looking at it: gtsr-data's `fibonacci_sphere` with y and z swapped.
 pub fn cameras_around(target: Vec3, distance: f32, n: usize, fov_x: f32, size: u32) -> Vec<Camera> {
-    let golden = std::f32::consts::PI * (3.0 - 5.0f32.sqrt());
-    (0..n)
-        .map(|k| {
-            let y = 1.0 - 2.0 * (k as f32 + 0.5) / n as f32;
-            let r = (1.0 - y * y).sqrt();
-            let phi = golden * k as f32;
-            let dir = Vec3::new(r * phi.cos(), y, r * phi.sin());
+    fibonacci_sphere(n, 1.0, 0.0)
+        .into_iter()
+        .map(|p| {
+            let dir = Vec3::new(p.x, p.z, p.y);
             let up = if dir.y.abs() > 0.9 { Vec3::X } else { Vec3::Y };
             Camera::look_at(target + dir * distance, target, up, fov_x, size, size)
         })

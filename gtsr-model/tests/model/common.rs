@@ -56,11 +56,6 @@ pub fn small_config(components: Components, iterations: usize) -> TrainConfig {
 
 pub fn trainer(scene: &Scene, config: TrainConfig, device: &Device) -> Trainer {
     let views = views(scene, device);
-    let masks: Vec<_> = views
-        .iter()
-        .zip(&scene.train)
-        .map(|(v, s)| (v.camera.clone(), s.mask.clone()))
-        .collect();
-    let pts = initial_points(&config, &masks).expect("points");
+    let pts = initial_points(&config, &views, &scene.train).expect("points");
     Trainer::new(config, views, 1.0, &pts, device).expect("trainer")
 }

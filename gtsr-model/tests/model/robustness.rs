@@ -187,14 +187,9 @@ fn mask_carved_points_project_inside_the_masks() {
     let scene = tiny_scene(dir.path());
     let device = device();
     let vs = views(&scene, &device);
-    let masks: Vec<_> = vs
-        .iter()
-        .zip(&scene.train)
-        .map(|(v, s)| (v.camera.clone(), s.mask.clone()))
-        .collect();
     let mut cfg = small_config(Preset::Full.components().unwrap(), 10);
     cfg.init = Init::MaskCarved;
-    let pts = initial_points(&cfg, &masks).unwrap();
+    let pts = initial_points(&cfg, &vs, &scene.train).unwrap();
     assert_eq!(pts.len(), cfg.init_surface);
     // The sphere has radius 1: carved points lie close to it, random ones fill the ball.
     let outside = pts
