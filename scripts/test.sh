@@ -5,8 +5,34 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 # The ../shared/data scenes are read by gtsr-data's tests; nothing else is needed from outside.
-# System packages: none are needed yet (pure-Rust dependencies only). The wgpu tests (issue #4)
-# will add Mesa 25 lavapipe from bookworm-backports here.
+#
+# System packages: the wgpu kernel tests (gtsr-render-kernels/tests/wgpu.rs) need a Vulkan
+# driver; without a GPU that is Mesa's lavapipe (CPU Vulkan). Mesa 22 from plain bookworm
+# silently caps shader loops at 65,535 iterations (wrong results), so Mesa >= 25 comes from
+# bookworm-backports. Nothing is installed when a recent enough driver is already there.
+mesa_major() {
+    local v
+    v=$(dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null || true)
+    echo "${v%%.*}"
+}
+if [[ "$(mesa_major)" =~ ^[0-9]+$ ]] && (( $(mesa_major) >= 25 )); then
+    :
+else
+    sudo=""
+    if [[ $(id -u) -ne 0 ]]; then sudo=sudo; fi
+    if ! grep -rqs "bookworm-backports" /etc/apt/sources.list /etc/apt/sources.list.d/; then
+        echo "deb http://deb.debian.org/debian bookworm-backports main" |
+            $sudo tee /etc/apt/sources.list.d/bookworm-backports.list >/dev/null
+    fi
+    echo "== installing Mesa lavapipe (mesa-vulkan-drivers) from bookworm-backports"
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq -t bookworm-backports \
+        mesa-vulkan-drivers >/dev/null
+    if ! [[ "$(mesa_major)" =~ ^[0-9]+$ ]] || (( $(mesa_major) < 25 )); then
+        echo "error: mesa-vulkan-drivers >= 25 is needed for the wgpu tests, got '$(mesa_major)'" >&2
+        exit 1
+    fi
+fi
 
 if ! command -v cargo >/dev/null; then
     echo "error: cargo not found; install Rust 1.95 (https://rustup.rs) first" >&2

@@ -1,6 +1,7 @@
-//! Renders 20,000 random Gaussians with the NdArray backend and writes a PNG (image | alpha).
+//! Renders 20,000 random Gaussians and writes a PNG (image | alpha).
 //!
-//! `cargo run --release -p gtsr-render-kernels --example render_png -- [out.png]`
+//! `cargo run --release -p gtsr-render-kernels --example render_png -- [out.png]` (NdArray);
+//! add `--features wgpu` and `wgpu` after the file name for the wgpu backend.
 
 // Device::ndarray is deprecated upstream; the design card keeps NdArray as the CI backend.
 #![allow(deprecated)]
@@ -13,6 +14,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let path = std::env::args()
         .nth(1)
         .unwrap_or_else(|| "splat.png".to_string());
+    let device = match std::env::args().nth(2).as_deref() {
+        #[cfg(feature = "wgpu")]
+        Some("wgpu") => Device::wgpu(burn::tensor::DeviceKind::DefaultDevice),
+        None | Some("ndarray") => Device::ndarray(),
+        Some(other) => {
+            return Err(format!(
+                "unknown backend {other:?}: ndarray or wgpu (with --features wgpu)"
+            )
+            .into());
+        }
+    };
     let mut spec = RandomSceneSpec::bench(20_000, 320, 240);
     spec.scale_range = (0.01, 0.06);
     let mut scene = random_scene(3, &spec);
@@ -25,14 +37,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     scene.background = vec![0.05, 0.05, 0.08];
     let t = std::time::Instant::now();
     let out = render(
-        scene.inputs(&Device::ndarray(), DType::F32),
+        scene.inputs(&device, DType::F32),
         &scene.config(AlphaCutoff::Hard),
     )?;
     let [h, w, _] = out.image.dims();
     let image: Vec<f32> = out.image.into_data().try_to_vec()?;
     let alpha: Vec<f32> = out.alpha.into_data().try_to_vec()?;
     println!(
-        "rendered {} Gaussians at {w}x{h} in {:.1} ms",
+        "rendered {} Gaussians at {w}x{h} on {device:?} in {:.1} ms (first call: includes kernel compilation)",
         scene.len(),
         t.elapsed().as_secs_f64() * 1e3
     );

@@ -95,11 +95,13 @@ pub enum RenderError {
     Mixed(String),
     /// The device's backend has no splatting kernels.
     #[error(
-        "no splatting kernels for device {0:?}: this build supports the NdArray backend (with or without autodiff)"
+        "no splatting kernels for device {0:?}: supported are NdArray and, with the `wgpu` feature of gtsr-render-kernels, wgpu (with or without autodiff)"
     )]
     UnsupportedDevice(Device),
     /// Only f32 and f64 are supported.
-    #[error("unsupported float dtype {0:?}: use f32 or f64")]
+    #[error(
+        "unsupported float dtype {0:?} on this device: NdArray takes f32 or f64, wgpu takes f32"
+    )]
     UnsupportedDType(burn::tensor::DType),
 }
 
@@ -107,7 +109,21 @@ pub enum RenderError {
 pub fn device_supported(device: &Device) -> bool {
     use burn::backend::DispatchDevice;
     let inner = device.clone().without_autodiff();
-    matches!(inner.as_dispatch(), DispatchDevice::NdArray(_))
+    match inner.as_dispatch() {
+        DispatchDevice::NdArray(_) => true,
+        #[cfg(feature = "wgpu")]
+        DispatchDevice::Cube(burn_cubecl::CubeDevice::Wgpu(_)) => true,
+        _ => false,
+    }
+}
+
+/// Whether the kernels of `device` compute in `dtype` (NdArray: f32 and f64; wgpu: f32).
+fn dtype_supported_on(device: &Device, dtype: burn::tensor::DType) -> bool {
+    use burn::backend::DispatchDevice;
+    match device.clone().without_autodiff().as_dispatch() {
+        DispatchDevice::NdArray(_) => supported_dtype(dtype),
+        _ => dtype == burn::tensor::DType::F32,
+    }
 }
 
 fn check_shape(
@@ -179,6 +195,9 @@ pub fn render(inputs: SplatInputs, config: &SplatConfig) -> Result<RenderOutput,
     }
     if !device_supported(&device) {
         return Err(RenderError::UnsupportedDevice(device));
+    }
+    if !dtype_supported_on(&device, dtype) {
+        return Err(RenderError::UnsupportedDType(dtype));
     }
     let xy_offsets = match inputs.xy_offsets {
         Some(t) => {

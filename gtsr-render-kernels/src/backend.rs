@@ -54,10 +54,16 @@ pub trait SplatKernels: Backend {
 }
 
 /// The dispatched splatting op. Use [`crate::render`] rather than calling this directly.
-#[backend_extension(Autodiff, NdArray)]
+#[backend_extension(
+    Autodiff,
+    NdArray,
+    Cube: cfg(feature = "wgpu"),
+    Fusion: cfg(feature = "wgpu")
+)]
 pub trait SplatBackend: Backend {
     /// Forward splat: returns `(image_and_alpha [H, W, C + 1], aux [N, 4])`. Only the first
     /// output is differentiable.
+    #[fusion(meta = crate::gpu::splat_meta)]
     fn splat(
         means: FloatTensor<Self>,
         quats: FloatTensor<Self>,

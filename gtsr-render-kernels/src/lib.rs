@@ -7,7 +7,9 @@
 //! - inputs are ordinary Burn tensors (see [`SplatInputs`]); on an autodiff device the image
 //!   and alpha are differentiable with respect to means, rotations, scales, opacities, features
 //!   and optional screen-space offsets, through whatever Burn expressions produced them;
-//! - the backend is chosen by the device: NdArray (f32 or f64, parallel over tiles with rayon);
+//! - the backend is chosen by the device: NdArray (f32 or f64, parallel over tiles with rayon),
+//!   or, with the `wgpu` feature, Burn's wgpu backend (f32; CubeCL kernels in [`gpu`], run
+//!   through `Fusion`);
 //! - [`reference`] is an independent brute-force renderer (every pixel against every Gaussian)
 //!   used to check the kernels.
 //!
@@ -33,6 +35,8 @@ pub mod backend;
 pub mod camera;
 pub mod config;
 pub mod cpu;
+#[cfg(feature = "wgpu")]
+pub mod gpu;
 pub mod reference;
 pub mod scalar;
 

@@ -458,7 +458,19 @@ pub fn weighted_loss_gradients(
     cutoff: AlphaCutoff,
     weights: &[f64],
 ) -> Result<SceneGradients, crate::RenderError> {
-    let device = Device::ndarray().autodiff();
+    weighted_loss_gradients_on(&Device::ndarray(), scene, dtype, cutoff, weights)
+}
+
+/// [`weighted_loss_gradients`] on any device with splatting kernels (its autodiff version is
+/// used).
+pub fn weighted_loss_gradients_on(
+    device: &Device,
+    scene: &HostScene,
+    dtype: DType,
+    cutoff: AlphaCutoff,
+    weights: &[f64],
+) -> Result<SceneGradients, crate::RenderError> {
+    let device = device.clone().autodiff();
     let inp = scene.inputs(&device, dtype);
     let leaves = SplatInputs {
         means: inp.means.require_grad(),

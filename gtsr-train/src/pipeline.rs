@@ -258,11 +258,20 @@ fn camera_extent(views: &[ViewTensors]) -> f64 {
     (1.1 * r).max(1e-3)
 }
 
+/// The Burn device of a backend choice (wgpu: the default adapter, a GPU where there is one).
+fn compute_device(backend: Backend) -> Device {
+    match backend {
+        #[cfg(feature = "wgpu")]
+        Backend::Wgpu => Device::wgpu(burn::tensor::DeviceKind::DefaultDevice),
+        _ => Device::ndarray(),
+    }
+}
+
 /// Runs everything `args` asks for.
 pub fn run(args: &Args) -> Result<Outcome> {
-    if args.backend == Backend::Wgpu {
+    if args.backend == Backend::Wgpu && !cfg!(feature = "wgpu") {
         bail!(
-            "--backend wgpu: this build has no wgpu splatting kernels yet (the CubeCL kernels are a separate, open issue); use --backend ndarray"
+            "--backend wgpu: this gtsr-train was built without its `wgpu` feature; rebuild with the default features or use --backend ndarray"
         );
     }
     std::fs::create_dir_all(&args.out)
@@ -307,7 +316,8 @@ pub fn run(args: &Args) -> Result<Outcome> {
     };
     outputs::write_json(&args.out.join("config.json"), &resolved)?;
 
-    let device = Device::ndarray().autodiff();
+    let device = compute_device(args.backend).autodiff();
+    println!("compute device: {device:?}");
     let views = upload_views(&scene.train, &device)
         .with_context(|| format!("dataset {}", data_dir.display()))?;
     let tests = upload_views(&scene.test, &device)

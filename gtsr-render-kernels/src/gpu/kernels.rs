@@ -1,0 +1,1023 @@
+//! The splatting kernels in CubeCL: projection, tile emission, tile ranges, blending forward
+//! and backward, and the per-Gaussian gradient gather with the projection VJP.
+//!
+//! They follow the CPU kernels ([`crate::cpu`]) operation for operation (same row-wise power
+//! evaluation, same alpha cut-off, cap and transmittance stop, same culling and status codes),
+//! so that the two agree to rounding. Loops run over compile-time bounds or over per-splat
+//! tile rectangles; the per-tile splat lists are walked in batches through shared memory, as
+//! in 3DGS.
+
+// Kernel code is CubeCL's dialect of Rust: `div_ceil` and the `||` of two branches with side
+// effects are written out on purpose.
+#![allow(clippy::manual_div_ceil, clippy::if_same_then_else)]
+
+use burn_cubecl::cubecl;
+use cubecl::prelude::*;
+
+use crate::config::TILE_SIZE;
+
+/// Floats per projected splat: x, y, conic a, b, c, opacity, depth, skip power, rect x0, y0,
+/// x1, y1 (the rectangle as exact small integers).
+pub const PROJ: u32 = 12;
+/// Floats in the camera buffer: rotation (row-major 3x3), translation, fx, fy, cx, cy, near,
+/// far, x/z limits, y/z limits.
+pub const CAM: u32 = 22;
+/// Threads per tile (one per pixel).
+pub const TILE_THREADS: u32 = TILE_SIZE * TILE_SIZE;
+/// Splats loaded into shared memory per round in the forward pass.
+const FWD_BATCH: u32 = TILE_THREADS;
+/// Splats per round in the backward pass (smaller: it also needs reduction space).
+const BWD_BATCH: u32 = 128;
+/// Per-splat floats kept in shared memory by the blend: x, y, a, b, c, opacity, skip power.
+const SPLAT: u32 = 7;
+/// Gradient values reduced per step in the backward pass.
+const RED: u32 = 8;
+
+const ALPHA_MIN: f32 = 1.0 / 255.0;
+const ALPHA_MAX: f32 = 0.99;
+const T_MIN: f32 = 1e-4;
+const BLUR: f32 = 0.3;
+const QUAT_MIN_NORM2: f32 = 1e-8;
+
+// Layout of the intermediate values of the projection (`core`).
+const QN: usize = 0; // 4
+const QNORM: usize = 4;
+const RQ: usize = 5; // 9
+const SC: usize = 14; // 9, Sigma_c
+const P: usize = 23; // 3
+const TX: usize = 26;
+const TY: usize = 27;
+const CLX: usize = 28;
+const CLY: usize = 29;
+const J00: usize = 30;
+const J02: usize = 31;
+const J11: usize = 32;
+const J12: usize = 33;
+const COV: usize = 34; // 3
+const CON: usize = 37; // 3
+/// Size of the `core` array.
+const CORE: usize = 40;
+
+/// Whether `x` is neither infinite nor NaN, from its bits (robust to fast-math compilers).
+#[cube]
+fn finite(x: f32) -> bool {
+    (u32::reinterpret(x) & 0x7f80_0000u32) != 0x7f80_0000u32
+}
+
+#[cube]
+fn clampf(x: f32, lo: f32, hi: f32) -> f32 {
+    let a = select(x < lo, lo, x);
+    select(a > hi, hi, a)
+}
+
+/// The projection up to the conic (the CPU's `project_core`). Returns the status: 0 when the
+/// splat survives, else `CLIPPED` (1), `NON_FINITE` (2) or `DEGENERATE` (3).
+#[cube]
+fn project_core(
+    means: &[f32],
+    quats: &[f32],
+    scales: &[f32],
+    opacities: &[f32],
+    offsets: &[f32],
+    cam: &[f32],
+    i: u32,
+    out: &mut Array<f32>,
+) -> u32 {
+    let i = i as usize;
+    let m0 = means[3 * i];
+    let m1 = means[3 * i + 1];
+    let m2 = means[3 * i + 2];
+    let q0 = quats[4 * i];
+    let q1 = quats[4 * i + 1];
+    let q2 = quats[4 * i + 2];
+    let q3 = quats[4 * i + 3];
+    let s0 = scales[3 * i];
+    let s1 = scales[3 * i + 1];
+    let s2 = scales[3 * i + 2];
+    let mut fin = finite(m0) && finite(m1) && finite(m2);
+    fin = fin && finite(q0) && finite(q1) && finite(q2) && finite(q3);
+    fin = fin && finite(s0) && finite(s1) && finite(s2);
+    fin = fin && finite(opacities[i]) && finite(offsets[2 * i]) && finite(offsets[2 * i + 1]);
+    let mut status = 0u32;
+    if !fin {
+        status = 2u32;
+    }
+    let p0 = cam[0] * m0 + cam[1] * m1 + cam[2] * m2 + cam[9];
+    let p1 = cam[3] * m0 + cam[4] * m1 + cam[5] * m2 + cam[10];
+    let z = cam[6] * m0 + cam[7] * m1 + cam[8] * m2 + cam[11];
+    out[P] = p0;
+    out[P + 1] = p1;
+    out[P + 2] = z;
+    if status == 0u32 && !(finite(z) && z >= cam[16] && z <= cam[17]) {
+        status = 1u32;
+    }
+    let n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3;
+    if status == 0u32 && n2 < QUAT_MIN_NORM2 {
+        status = 3u32;
+    }
+    let qnorm = n2.sqrt();
+    let w = q0 / qnorm;
+    let x = q1 / qnorm;
+    let y = q2 / qnorm;
+    let zq = q3 / qnorm;
+    out[QN] = w;
+    out[QN + 1] = x;
+    out[QN + 2] = y;
+    out[QN + 3] = zq;
+    out[QNORM] = qnorm;
+    out[RQ] = 1.0 - 2.0 * (y * y + zq * zq);
+    out[RQ + 1] = 2.0 * (x * y - w * zq);
+    out[RQ + 2] = 2.0 * (x * zq + w * y);
+    out[RQ + 3] = 2.0 * (x * y + w * zq);
+    out[RQ + 4] = 1.0 - 2.0 * (x * x + zq * zq);
+    out[RQ + 5] = 2.0 * (y * zq - w * x);
+    out[RQ + 6] = 2.0 * (x * zq - w * y);
+    out[RQ + 7] = 2.0 * (y * zq + w * x);
+    out[RQ + 8] = 1.0 - 2.0 * (x * x + y * y);
+    // wm = W R_q diag(s); Sigma_c = wm wm^T.
+    let mut wm = Array::<f32>::new(9usize);
+    #[unroll]
+    for a in 0..3usize {
+        #[unroll]
+        for b in 0..3usize {
+            let v = cam[a * 3] * out[RQ + b]
+                + cam[a * 3 + 1] * out[RQ + 3 + b]
+                + cam[a * 3 + 2] * out[RQ + 6 + b];
+            let s = if b == 0 {
+                s0
+            } else if b == 1 {
+                s1
+            } else {
+                s2
+            };
+            wm[a * 3 + b] = v * s;
+        }
+    }
+    #[unroll]
+    for a in 0..3usize {
+        #[unroll]
+        for b in 0..3usize {
+            out[SC + a * 3 + b] = wm[a * 3] * wm[b * 3]
+                + wm[a * 3 + 1] * wm[b * 3 + 1]
+                + wm[a * 3 + 2] * wm[b * 3 + 2];
+        }
+    }
+    let xz = p0 / z;
+    let yz = p1 / z;
+    let cxz = clampf(xz, cam[18], cam[19]);
+    let cyz = clampf(yz, cam[20], cam[21]);
+    out[CLX] = select(cxz != xz, 1.0f32, 0.0f32);
+    out[CLY] = select(cyz != yz, 1.0f32, 0.0f32);
+    let tx = z * cxz;
+    let ty = z * cyz;
+    out[TX] = tx;
+    out[TY] = ty;
+    let iz = 1.0 / z;
+    let iz2 = iz * iz;
+    let j00 = cam[12] * iz;
+    let j02 = -cam[12] * tx * iz2;
+    let j11 = cam[13] * iz;
+    let j12 = -cam[13] * ty * iz2;
+    out[J00] = j00;
+    out[J02] = j02;
+    out[J11] = j11;
+    out[J12] = j12;
+    // js = J Sigma_c (rows 0 and 1).
+    let js00 = j00 * out[SC] + j02 * out[SC + 6];
+    let js01 = j00 * out[SC + 1] + j02 * out[SC + 7];
+    let js02 = j00 * out[SC + 2] + j02 * out[SC + 8];
+    let js11 = j11 * out[SC + 4] + j12 * out[SC + 7];
+    let js12 = j11 * out[SC + 5] + j12 * out[SC + 8];
+    let ca = js00 * j00 + js02 * j02 + BLUR;
+    let cb = js01 * j11 + js02 * j12;
+    let cc = js11 * j11 + js12 * j12 + BLUR;
+    out[COV] = ca;
+    out[COV + 1] = cb;
+    out[COV + 2] = cc;
+    let det = ca * cc - cb * cb;
+    if status == 0u32 && !(finite(det) && det > 0.0) {
+        status = 3u32;
+    }
+    let ka = cc / det;
+    let kb = -cb / det;
+    let kc = ca / det;
+    out[CON] = ka;
+    out[CON + 1] = kb;
+    out[CON + 2] = kc;
+    if status == 0u32 && !(finite(ka) && finite(kb) && finite(kc)) {
+        status = 3u32;
+    }
+    status
+}
+
+/// One thread per Gaussian: projects it, writes its aux row (radius, depth, tiles, status),
+/// its projected record, its tile count and its depth sort key (`u32::MAX` when culled; the
+/// value is the Gaussian's index).
+#[cube(launch)]
+pub fn project_forward(
+    means: &[f32],
+    quats: &[f32],
+    scales: &[f32],
+    opacities: &[f32],
+    features: &[f32],
+    offsets: &[f32],
+    cam: &[f32],
+    proj: &mut [f32],
+    aux: &mut [f32],
+    tiles: &mut [u32],
+    keys: &mut [u32],
+    vals: &mut [u32],
+    n: u32,
+    width: u32,
+    height: u32,
+    #[comptime] channels: usize,
+) {
+    let i = ABSOLUTE_POS as u32;
+    if i >= n {
+        terminate!();
+    }
+    let iu = i as usize;
+    vals[iu] = i;
+    keys[iu] = 0xffff_ffffu32;
+    tiles[iu] = 0u32;
+    aux[4 * iu] = 0.0;
+    aux[4 * iu + 1] = 0.0;
+    aux[4 * iu + 2] = 0.0;
+    let mut core = Array::<f32>::new(CORE);
+    let mut status = project_core(means, quats, scales, opacities, offsets, cam, i, &mut core);
+    let mut feat_ok = true;
+    #[unroll]
+    for c in 0..channels {
+        feat_ok = feat_ok && finite(features[iu * channels + c]);
+    }
+    if !feat_ok {
+        status = 2u32;
+    }
+    let z = core[P + 2];
+    let x = cam[12] * core[P] / z + cam[14] + offsets[2 * iu];
+    let y = cam[13] * core[P + 1] / z + cam[15] + offsets[2 * iu + 1];
+    let o = opacities[iu];
+    let level = 2.0 * (o / ALPHA_MIN).ln();
+    if status == 0u32 && (!finite(level) || level <= 0.0) {
+        status = 4u32;
+    }
+    let ex = (level * core[COV]).sqrt();
+    let ey = (level * core[COV + 2]).sqrt();
+    let lo_x = (x - ex - 0.5).ceil();
+    let hi_x = (x + ex - 0.5).floor();
+    let lo_y = (y - ey - 0.5).ceil();
+    let hi_y = (y + ey - 0.5).floor();
+    if status == 0u32 && !(finite(lo_x) && finite(hi_x) && finite(lo_y) && finite(hi_y)) {
+        status = 3u32;
+    }
+    let wf = f32::cast_from(width);
+    let hf = f32::cast_from(height);
+    let x0 = clampf(lo_x, 0.0, wf);
+    let y0 = clampf(lo_y, 0.0, hf);
+    let x1 = clampf(hi_x + 1.0, 0.0, wf);
+    let y1 = clampf(hi_y + 1.0, 0.0, hf);
+    if status == 0u32 && !(x0 < x1 && y0 < y1) {
+        status = 4u32;
+    }
+    aux[4 * iu + 3] = f32::cast_from(status);
+    if status == 0u32 {
+        let rx0 = u32::cast_from(x0);
+        let ry0 = u32::cast_from(y0);
+        let rx1 = u32::cast_from(x1);
+        let ry1 = u32::cast_from(y1);
+        let tx0 = rx0 / TILE_SIZE;
+        let ty0 = ry0 / TILE_SIZE;
+        let tx1 = (rx1 + TILE_SIZE - 1) / TILE_SIZE;
+        let ty1 = (ry1 + TILE_SIZE - 1) / TILE_SIZE;
+        let count = (tx1 - tx0) * (ty1 - ty0);
+        let b = iu * PROJ as usize;
+        proj[b] = x;
+        proj[b + 1] = y;
+        proj[b + 2] = core[CON];
+        proj[b + 3] = core[CON + 1];
+        proj[b + 4] = core[CON + 2];
+        proj[b + 5] = o;
+        proj[b + 6] = z;
+        proj[b + 7] = -(0.5 * level) - 1e-3;
+        proj[b + 8] = f32::cast_from(rx0);
+        proj[b + 9] = f32::cast_from(ry0);
+        proj[b + 10] = f32::cast_from(rx1);
+        proj[b + 11] = f32::cast_from(ry1);
+        tiles[iu] = count;
+        // Visible depths are >= near > 0: their bit patterns sort like the values.
+        keys[iu] = u32::reinterpret(z);
+        aux[4 * iu] = select(ex > ey, ex, ey);
+        aux[4 * iu + 1] = z;
+        aux[4 * iu + 2] = f32::cast_from(count);
+    }
+}
+
+/// `counts[r] = tiles[order[r]]` for `r < n`, and `counts[n] = 0` (so that the exclusive scan
+/// of `counts` ends with the total).
+#[cube(launch)]
+pub fn gather_counts(order: &[u32], tiles: &[u32], counts: &mut [u32], n: u32) {
+    let r = ABSOLUTE_POS as u32;
+    if r < n {
+        counts[r as usize] = tiles[order[r as usize] as usize];
+    } else if r == n {
+        counts[r as usize] = 0u32;
+    }
+}
+
+/// One thread per Gaussian in depth order: writes one (tile id, emission index) pair per tile
+/// its rectangle touches, row-major, and the Gaussian of each emission.
+#[cube(launch)]
+pub fn emit_intersections(
+    order: &[u32],
+    starts: &[u32],
+    proj: &[f32],
+    keys: &mut [u32],
+    vals: &mut [u32],
+    gids: &mut [u32],
+    n: u32,
+    tiles_x: u32,
+) {
+    let r = ABSOLUTE_POS as u32;
+    if r >= n {
+        terminate!();
+    }
+    let start = starts[r as usize];
+    let end = starts[r as usize + 1];
+    if start < end {
+        let g = order[r as usize];
+        let b = g as usize * PROJ as usize;
+        let tx0 = u32::cast_from(proj[b + 8]) / TILE_SIZE;
+        let ty0 = u32::cast_from(proj[b + 9]) / TILE_SIZE;
+        let tx1 = (u32::cast_from(proj[b + 10]) + TILE_SIZE - 1) / TILE_SIZE;
+        let ty1 = (u32::cast_from(proj[b + 11]) + TILE_SIZE - 1) / TILE_SIZE;
+        let mut e = start;
+        for ty in ty0..ty1 {
+            for tx in tx0..tx1 {
+                keys[e as usize] = ty * tiles_x + tx;
+                vals[e as usize] = e;
+                gids[e as usize] = g;
+                e += 1;
+            }
+        }
+    }
+}
+
+/// After the sort by tile: the Gaussian of each sorted intersection, the sorted position of
+/// each emission, and each tile's `[start, end)` (`ranges` must be zeroed beforehand).
+#[cube(launch)]
+pub fn finish_bins(
+    sorted_keys: &[u32],
+    sorted_vals: &[u32],
+    gids: &[u32],
+    sorted_gids: &mut [u32],
+    position: &mut [u32],
+    ranges: &mut [u32],
+    total: u32,
+) {
+    let i = ABSOLUTE_POS as u32;
+    if i >= total {
+        terminate!();
+    }
+    let iu = i as usize;
+    let e = sorted_vals[iu];
+    sorted_gids[iu] = gids[e as usize];
+    position[e as usize] = i;
+    let t = sorted_keys[iu];
+    if i == 0u32 {
+        ranges[2 * t as usize] = 0u32;
+    } else if sorted_keys[iu - 1] != t {
+        ranges[2 * t as usize] = i;
+    }
+    if i + 1 == total {
+        ranges[2 * t as usize + 1] = i + 1;
+    } else if sorted_keys[iu + 1] != t {
+        ranges[2 * t as usize + 1] = i + 1;
+    }
+}
+
+/// The alpha of a splat at a pixel from its exponent, with the CPU's cap and cut-off:
+/// `out = (alpha, raw, gauss, d alpha / d capped)`, alpha 0 when cut.
+#[cube]
+fn eval_alpha(opacity: f32, power: f32, out: &mut Array<f32>, #[comptime] smooth: bool) {
+    let gauss = power.exp();
+    let raw = opacity * gauss;
+    let capped = select(raw < ALPHA_MAX, raw, ALPHA_MAX);
+    out[1] = raw;
+    out[2] = gauss;
+    if capped < ALPHA_MIN {
+        out[0] = 0.0;
+        out[3] = 0.0;
+    } else if smooth {
+        let t = (capped - ALPHA_MIN) / ALPHA_MIN;
+        if t >= 1.0 {
+            out[0] = capped;
+            out[3] = 1.0;
+        } else {
+            let w = t * t * (3.0 - 2.0 * t);
+            let dw = 6.0 * t * (1.0 - t) / ALPHA_MIN;
+            out[0] = capped * w;
+            out[3] = w + capped * dw;
+        }
+    } else {
+        out[0] = capped;
+        out[3] = 1.0;
+    }
+}
+
+/// The splat's exponent at a pixel, evaluated as the CPU does (`(ha dx + lin) dx + cst`).
+#[cube]
+fn power_at(a: f32, b: f32, c: f32, dx: f32, dy: f32) -> f32 {
+    let ha = -0.5f32 * a;
+    let lin = -(b * dy);
+    let cst = (-0.5f32 * c) * dy * dy;
+    (ha * dx + lin) * dx + cst
+}
+
+/// Loads the splat of sorted intersection `idx` into shared slot `slot`.
+#[cube]
+fn load_splat(
+    proj: &[f32],
+    sorted_gids: &[u32],
+    idx: u32,
+    slot: u32,
+    s_splat: &mut Shared<[f32]>,
+    s_rect: &mut Shared<[u32]>,
+    s_gid: &mut Shared<[u32]>,
+) {
+    let g = sorted_gids[idx as usize];
+    let b = g as usize * PROJ as usize;
+    let s = slot as usize * SPLAT as usize;
+    s_splat[s] = proj[b];
+    s_splat[s + 1] = proj[b + 1];
+    s_splat[s + 2] = proj[b + 2];
+    s_splat[s + 3] = proj[b + 3];
+    s_splat[s + 4] = proj[b + 4];
+    s_splat[s + 5] = proj[b + 5];
+    s_splat[s + 6] = proj[b + 7];
+    let r = slot as usize * 4;
+    s_rect[r] = u32::cast_from(proj[b + 8]);
+    s_rect[r + 1] = u32::cast_from(proj[b + 9]);
+    s_rect[r + 2] = u32::cast_from(proj[b + 10]);
+    s_rect[r + 3] = u32::cast_from(proj[b + 11]);
+    s_gid[slot as usize] = g;
+}
+
+/// One cube per 16x16 tile, one thread per pixel: blends the tile's depth-sorted splats front
+/// to back. Writes the `[H, W, C + 1]` image, and per pixel the final transmittance and the
+/// number of list entries up to the last one blended.
+#[cube(launch)]
+pub fn rasterize_forward(
+    proj: &[f32],
+    sorted_gids: &[u32],
+    ranges: &[u32],
+    features: &[f32],
+    background: &[f32],
+    image: &mut [f32],
+    t_final: &mut [f32],
+    n_contrib: &mut [f32],
+    width: u32,
+    height: u32,
+    #[comptime] channels: usize,
+    #[comptime] smooth: bool,
+) {
+    let tile = CUBE_POS_Y * CUBE_COUNT_X + CUBE_POS_X;
+    let ox = CUBE_POS_X * TILE_SIZE;
+    let oy = CUBE_POS_Y * TILE_SIZE;
+    let lx = UNIT_POS_X;
+    let ly = UNIT_POS_Y;
+    let tid = UNIT_POS;
+    let px = ox + lx;
+    let py = oy + ly;
+    let inside = px < width && py < height;
+    let start = ranges[2 * tile as usize];
+    let end = ranges[2 * tile as usize + 1];
+    let mut s_splat = Shared::<[f32]>::new_slice((FWD_BATCH * SPLAT) as usize);
+    let mut s_rect = Shared::<[u32]>::new_slice((FWD_BATCH * 4) as usize);
+    let mut s_gid = Shared::<[u32]>::new_slice(FWD_BATCH as usize);
+    let done_count = Shared::<[Atomic<u32>]>::new_slice(1usize);
+    if tid == 0u32 {
+        done_count[0].store(0u32);
+    }
+    sync_cube();
+    let mut done = !inside;
+    if done {
+        done_count[0].fetch_add(1u32);
+    }
+    let mut trans = 1.0f32;
+    let mut acc = Array::<f32>::new(channels);
+    #[unroll]
+    for c in 0..channels {
+        acc[c] = 0.0;
+    }
+    let mut last = 0u32;
+    let mut a_out = Array::<f32>::new(4usize);
+    let dx0 = f32::cast_from(ox) + 0.5;
+    let dyp = f32::cast_from(py) + 0.5;
+    let count = end - start;
+    let rounds = (count + FWD_BATCH - 1) / FWD_BATCH;
+    for round in 0..rounds {
+        sync_cube();
+        if done_count[0].load() == TILE_THREADS {
+            break;
+        }
+        let first = round * FWD_BATCH;
+        if first + tid < count {
+            load_splat(
+                proj,
+                sorted_gids,
+                start + first + tid,
+                tid,
+                &mut s_splat,
+                &mut s_rect,
+                &mut s_gid,
+            );
+        }
+        sync_cube();
+        if !done {
+            let batch = select(count - first < FWD_BATCH, count - first, FWD_BATCH);
+            for j in 0..batch {
+                let r = j as usize * 4;
+                if px >= s_rect[r]
+                    && px < s_rect[r + 2]
+                    && py >= s_rect[r + 1]
+                    && py < s_rect[r + 3]
+                {
+                    let s = j as usize * SPLAT as usize;
+                    let dx = (dx0 - s_splat[s]) + f32::cast_from(lx);
+                    let dy = dyp - s_splat[s + 1];
+                    let power = power_at(s_splat[s + 2], s_splat[s + 3], s_splat[s + 4], dx, dy);
+                    if power >= s_splat[s + 6] {
+                        eval_alpha(s_splat[s + 5], power, &mut a_out, smooth);
+                        let alpha = a_out[0];
+                        if alpha > 0.0 {
+                            let next_t = trans * (1.0 - alpha);
+                            if next_t < T_MIN {
+                                done = true;
+                                done_count[0].fetch_add(1u32);
+                                break;
+                            }
+                            let w = alpha * trans;
+                            let g = s_gid[j as usize] as usize;
+                            #[unroll]
+                            for c in 0..channels {
+                                acc[c] += features[g * channels + c] * w;
+                            }
+                            trans = next_t;
+                            last = first + j + 1;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    if inside {
+        let pix = (py * width + px) as usize;
+        let o = pix * (channels + 1);
+        #[unroll]
+        for c in 0..channels {
+            image[o + c] = acc[c] + trans * background[c];
+        }
+        image[o + channels] = 1.0 - trans;
+        t_final[pix] = trans;
+        n_contrib[pix] = f32::cast_from(last);
+    }
+}
+
+/// One cube per tile, one thread per pixel: walks the tile's splats back to front from the
+/// last one any pixel blended and writes, per sorted intersection, the tile's gradient row
+/// `d_xy[2], d_conic[3], d_opacity, d_features[C]` (summed over the tile's pixels in a fixed
+/// order, so the result is deterministic).
+#[cube(launch)]
+pub fn rasterize_backward(
+    proj: &[f32],
+    sorted_gids: &[u32],
+    ranges: &[u32],
+    features: &[f32],
+    background: &[f32],
+    grad: &[f32],
+    t_final: &[f32],
+    n_contrib: &[f32],
+    rows: &mut [f32],
+    width: u32,
+    height: u32,
+    #[comptime] channels: usize,
+    #[comptime] smooth: bool,
+) {
+    let values = channels + 6;
+    let tile = CUBE_POS_Y * CUBE_COUNT_X + CUBE_POS_X;
+    let ox = CUBE_POS_X * TILE_SIZE;
+    let oy = CUBE_POS_Y * TILE_SIZE;
+    let lx = UNIT_POS_X;
+    let ly = UNIT_POS_Y;
+    let tid = UNIT_POS;
+    let px = ox + lx;
+    let py = oy + ly;
+    let inside = px < width && py < height;
+    let start = ranges[2 * tile as usize];
+    let end = ranges[2 * tile as usize + 1];
+    let pix = (py * width + px) as usize;
+    let mut trans = 1.0f32;
+    let mut nc = 0u32;
+    let mut g_alpha = 0.0f32;
+    let mut back = Array::<f32>::new(channels);
+    let mut g_col = Array::<f32>::new(channels);
+    #[unroll]
+    for c in 0..channels {
+        back[c] = 0.0;
+        g_col[c] = 0.0;
+    }
+    if inside {
+        trans = t_final[pix];
+        nc = u32::cast_from(n_contrib[pix]);
+        let o = pix * (channels + 1);
+        #[unroll]
+        for c in 0..channels {
+            back[c] = trans * background[c];
+            g_col[c] = grad[o + c];
+        }
+        g_alpha = grad[o + channels];
+    }
+    let t_fin = trans;
+    let max_nc = Shared::<[Atomic<u32>]>::new_slice(1usize);
+    let mut vote = Shared::<[u32]>::new_slice(3usize);
+    if tid == 0u32 {
+        max_nc[0].store(0u32);
+        vote[0] = 0u32;
+        vote[1] = 0u32;
+        vote[2] = 0u32;
+    }
+    sync_cube();
+    max_nc[0].fetch_max(nc);
+    sync_cube();
+    let total = end - start;
+    let most = max_nc[0].load();
+    let count = select(most < total, most, total);
+    let mut s_splat = Shared::<[f32]>::new_slice((BWD_BATCH * SPLAT) as usize);
+    let mut s_rect = Shared::<[u32]>::new_slice((BWD_BATCH * 4) as usize);
+    let mut s_gid = Shared::<[u32]>::new_slice(BWD_BATCH as usize);
+    let mut red = Shared::<[f32]>::new_slice((RED * TILE_THREADS) as usize);
+    let mut part = Shared::<[f32]>::new_slice((RED * TILE_SIZE) as usize);
+    let mut cv = Array::<f32>::new(values);
+    let chunks = (values + RED as usize - 1) / RED as usize;
+    let mut step = 0u32;
+    let mut a_out = Array::<f32>::new(4usize);
+    let dx0 = f32::cast_from(ox) + 0.5;
+    let dyp = f32::cast_from(py) + 0.5;
+    let rounds = (count + BWD_BATCH - 1) / BWD_BATCH;
+    for round in 0..rounds {
+        let hi = count - round * BWD_BATCH;
+        let lo = select(hi > BWD_BATCH, hi - BWD_BATCH, 0u32);
+        sync_cube();
+        if tid < hi - lo {
+            load_splat(
+                proj,
+                sorted_gids,
+                start + lo + tid,
+                tid,
+                &mut s_splat,
+                &mut s_rect,
+                &mut s_gid,
+            );
+        }
+        sync_cube();
+        for jj in 0..(hi - lo) {
+            let j = hi - lo - 1 - jj;
+            let k = lo + j;
+            #[unroll]
+            for v in 0..values {
+                cv[v] = 0.0;
+            }
+            let mut contributed = false;
+            let r = j as usize * 4;
+            if k < nc
+                && px >= s_rect[r]
+                && px < s_rect[r + 2]
+                && py >= s_rect[r + 1]
+                && py < s_rect[r + 3]
+            {
+                let s = j as usize * SPLAT as usize;
+                let dx = (dx0 - s_splat[s]) + f32::cast_from(lx);
+                let dy = dyp - s_splat[s + 1];
+                let ca = s_splat[s + 2];
+                let cb = s_splat[s + 3];
+                let cc = s_splat[s + 4];
+                let power = power_at(ca, cb, cc, dx, dy);
+                if power >= s_splat[s + 6] {
+                    eval_alpha(s_splat[s + 5], power, &mut a_out, smooth);
+                    let alpha = a_out[0];
+                    if alpha > 0.0 {
+                        contributed = true;
+                        let raw = a_out[1];
+                        let inv_om = 1.0 / (1.0 - alpha);
+                        let t_i = trans * inv_om;
+                        let w_i = alpha * t_i;
+                        let mut d_alpha = g_alpha * t_fin * inv_om;
+                        let g = s_gid[j as usize] as usize;
+                        #[unroll]
+                        for c in 0..channels {
+                            let f = features[g * channels + c];
+                            cv[6 + c] = w_i * g_col[c];
+                            d_alpha += g_col[c] * (t_i * f - back[c] * inv_om);
+                            back[c] += f * w_i;
+                        }
+                        trans = t_i;
+                        if raw <= ALPHA_MAX {
+                            let d_raw = d_alpha * a_out[3];
+                            cv[5] = d_raw * a_out[2];
+                            let d_power = d_raw * raw;
+                            cv[0] = d_power * (ca * dx + cb * dy);
+                            cv[1] = d_power * (cb * dx + cc * dy);
+                            cv[2] = -0.5f32 * d_power * dx * dx;
+                            cv[3] = -d_power * dx * dy;
+                            cv[4] = -0.5f32 * d_power * dy * dy;
+                        }
+                    }
+                }
+            }
+            // Sum the tile's pixels, RED values at a time: rows of 16, then the 16 row sums.
+            // The first chunk's stores share a barrier with a vote on whether any pixel blended
+            // this splat at all; when none did (its rectangle's corners, or pixels saturated
+            // in front of it), the rest is skipped. The vote uses three rotating flags: flag
+            // `f` is cleared two splats ahead, when nobody can still be reading or writing it.
+            let f = (step % 3) as usize;
+            if contributed {
+                vote[f] = 1u32;
+            }
+            #[unroll]
+            for q in 0..RED as usize {
+                if q < values {
+                    red[q * TILE_THREADS as usize + tid as usize] = cv[q];
+                } else {
+                    red[q * TILE_THREADS as usize + tid as usize] = 0.0;
+                }
+            }
+            sync_cube();
+            let any = vote[f] != 0u32;
+            if tid == 0u32 {
+                vote[((step + 2) % 3) as usize] = 0u32;
+            }
+            step += 1;
+            if any {
+                let row_out = (start + k) as usize * values;
+                #[unroll]
+                for vb in 0..chunks {
+                    if vb > 0 {
+                        #[unroll]
+                        for q in 0..RED as usize {
+                            let v = vb * RED as usize + q;
+                            if v < values {
+                                red[q * TILE_THREADS as usize + tid as usize] = cv[v];
+                            } else {
+                                red[q * TILE_THREADS as usize + tid as usize] = 0.0;
+                            }
+                        }
+                        sync_cube();
+                    }
+                    if tid < RED * TILE_SIZE {
+                        let q = (tid / TILE_SIZE) as usize;
+                        let row = (tid % TILE_SIZE) as usize;
+                        let b = q * TILE_THREADS as usize + row * TILE_SIZE as usize;
+                        let mut sum = 0.0f32;
+                        #[unroll]
+                        for m in 0..TILE_SIZE as usize {
+                            sum += red[b + m];
+                        }
+                        part[q * TILE_SIZE as usize + row] = sum;
+                    }
+                    sync_cube();
+                    if tid < RED {
+                        let v = vb * RED as usize + tid as usize;
+                        if v < values {
+                            let mut sum = 0.0f32;
+                            #[unroll]
+                            for m in 0..TILE_SIZE as usize {
+                                sum += part[tid as usize * TILE_SIZE as usize + m];
+                            }
+                            rows[row_out + v] = sum;
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Gradient of a unit quaternion from the gradient of its rotation matrix (row-major `g`).
+#[cube]
+fn quat_to_rot_vjp(w: f32, x: f32, y: f32, z: f32, g: &Array<f32>, out: &mut Array<f32>) {
+    out[0] = 2.0 * (-z * g[1] + y * g[2] + z * g[3] - x * g[5] - y * g[6] + x * g[7]);
+    out[1] = 2.0 * (y * g[1] + z * g[2] + y * g[3] - w * g[5] + z * g[6] + w * g[7])
+        - 4.0 * x * (g[4] + g[8]);
+    out[2] = 2.0 * (x * g[1] + w * g[2] + x * g[3] + z * g[5] - w * g[6] + z * g[7])
+        - 4.0 * y * (g[0] + g[8]);
+    out[3] = 2.0 * (-w * g[1] + x * g[2] + w * g[3] + y * g[5] + x * g[6] + y * g[7])
+        - 4.0 * z * (g[0] + g[4]);
+}
+
+/// One thread per Gaussian in depth order: sums its intersection rows (in emission order) and
+/// applies the projection VJP. Gaussians without intersections keep their zeroed gradients.
+#[cube(launch)]
+pub fn project_backward(
+    order: &[u32],
+    starts: &[u32],
+    position: &[u32],
+    rows: &[f32],
+    means: &[f32],
+    quats: &[f32],
+    scales: &[f32],
+    opacities: &[f32],
+    offsets: &[f32],
+    cam: &[f32],
+    g_means: &mut [f32],
+    g_quats: &mut [f32],
+    g_scales: &mut [f32],
+    g_opacities: &mut [f32],
+    g_features: &mut [f32],
+    g_offsets: &mut [f32],
+    n: u32,
+    #[comptime] channels: usize,
+) {
+    let values = channels + 6;
+    let r = ABSOLUTE_POS as u32;
+    if r >= n {
+        terminate!();
+    }
+    let start = starts[r as usize];
+    let end = starts[r as usize + 1];
+    if start >= end {
+        terminate!();
+    }
+    let g = order[r as usize];
+    let gu = g as usize;
+    let mut acc = Array::<f32>::new(values);
+    #[unroll]
+    for v in 0..values {
+        acc[v] = 0.0;
+    }
+    for e in start..end {
+        let row = position[e as usize] as usize * values;
+        #[unroll]
+        for v in 0..values {
+            acc[v] += rows[row + v];
+        }
+    }
+    #[unroll]
+    for c in 0..channels {
+        g_features[gu * channels + c] = acc[6 + c];
+    }
+    let mut f = Array::<f32>::new(CORE);
+    project_core(means, quats, scales, opacities, offsets, cam, g, &mut f);
+    let fx = cam[12];
+    let fy = cam[13];
+    let z = f[P + 2];
+    let iz = 1.0 / z;
+    let iz2 = iz * iz;
+    let iz3 = iz2 * iz;
+    let dxy0 = acc[0];
+    let dxy1 = acc[1];
+    let mut dp0 = dxy0 * fx * iz;
+    let mut dp1 = dxy1 * fy * iz;
+    let mut dp2 = -(dxy0 * fx * f[P] + dxy1 * fy * f[P + 1]) * iz2;
+    // Conic -> covariance: dL/dcov = -Q G Q, G = [[ga, gb/2], [gb/2, gc]].
+    let qa = f[CON];
+    let qb = f[CON + 1];
+    let qc = f[CON + 2];
+    let ga = acc[2];
+    let gb = 0.5 * acc[3];
+    let gc = acc[4];
+    let qg00 = qa * ga + qb * gb;
+    let qg01 = qa * gb + qb * gc;
+    let qg10 = qb * ga + qc * gb;
+    let qg11 = qb * gb + qc * gc;
+    let gc00 = -(qg00 * qa + qg01 * qb);
+    let gc01 = -(qg00 * qb + qg01 * qc);
+    let gc10 = -(qg10 * qa + qg11 * qb);
+    let gc11 = -(qg10 * qb + qg11 * qc);
+    // J = [[j00, 0, j02], [0, j11, j12]].
+    let mut jm = Array::<f32>::new(6usize);
+    jm[0] = f[J00];
+    jm[1] = 0.0;
+    jm[2] = f[J02];
+    jm[3] = 0.0;
+    jm[4] = f[J11];
+    jm[5] = f[J12];
+    let mut gcv = Array::<f32>::new(4usize);
+    gcv[0] = gc00;
+    gcv[1] = gc01;
+    gcv[2] = gc10;
+    gcv[3] = gc11;
+    // dSigma_c = J^T Gc J.
+    let mut dsc = Array::<f32>::new(9usize);
+    #[unroll]
+    for a in 0..3usize {
+        #[unroll]
+        for b in 0..3usize {
+            let mut s = 0.0f32;
+            #[unroll]
+            for i in 0..2usize {
+                #[unroll]
+                for k in 0..2usize {
+                    s += jm[i * 3 + a] * gcv[i * 2 + k] * jm[k * 3 + b];
+                }
+            }
+            dsc[a * 3 + b] = s;
+        }
+    }
+    // dJ = 2 Gc J Sigma_c.
+    let mut gj = Array::<f32>::new(6usize);
+    #[unroll]
+    for i in 0..2usize {
+        #[unroll]
+        for b in 0..3usize {
+            gj[i * 3 + b] = gcv[i * 2] * jm[b] + gcv[i * 2 + 1] * jm[3 + b];
+        }
+    }
+    let mut dj = Array::<f32>::new(6usize);
+    #[unroll]
+    for i in 0..2usize {
+        #[unroll]
+        for b in 0..3usize {
+            dj[i * 3 + b] = 2.0
+                * (gj[i * 3] * f[SC + b]
+                    + gj[i * 3 + 1] * f[SC + 3 + b]
+                    + gj[i * 3 + 2] * f[SC + 6 + b]);
+        }
+    }
+    let tx = f[TX];
+    let ty = f[TY];
+    dp2 = dp2 - dj[0] * fx * iz2 - dj[4] * fy * iz2;
+    let d_tx = -dj[2] * fx * iz2;
+    let d_ty = -dj[5] * fy * iz2;
+    dp2 += 2.0 * (dj[2] * fx * tx + dj[5] * fy * ty) * iz3;
+    if f[CLX] > 0.5 {
+        dp2 += d_tx * tx / z;
+    } else {
+        dp0 += d_tx;
+    }
+    if f[CLY] > 0.5 {
+        dp2 += d_ty * ty / z;
+    } else {
+        dp1 += d_ty;
+    }
+    // p = W m + t.
+    #[unroll]
+    for k in 0..3usize {
+        g_means[gu * 3 + k] = cam[k] * dp0 + cam[3 + k] * dp1 + cam[6 + k] * dp2;
+    }
+    // dSigma = W^T dSigma_c W.
+    let mut tmp = Array::<f32>::new(9usize);
+    #[unroll]
+    for a in 0..3usize {
+        #[unroll]
+        for b in 0..3usize {
+            tmp[a * 3 + b] = cam[a] * dsc[b] + cam[3 + a] * dsc[3 + b] + cam[6 + a] * dsc[6 + b];
+        }
+    }
+    let mut ds = Array::<f32>::new(9usize);
+    #[unroll]
+    for a in 0..3usize {
+        #[unroll]
+        for b in 0..3usize {
+            ds[a * 3 + b] =
+                tmp[a * 3] * cam[b] + tmp[a * 3 + 1] * cam[3 + b] + tmp[a * 3 + 2] * cam[6 + b];
+        }
+    }
+    // M = R_q diag(s); dM = (dSigma + dSigma^T) M; d_scale, d_rot.
+    let mut sv = Array::<f32>::new(3usize);
+    sv[0] = scales[gu * 3];
+    sv[1] = scales[gu * 3 + 1];
+    sv[2] = scales[gu * 3 + 2];
+    let mut d_rot = Array::<f32>::new(9usize);
+    let mut d_scale = Array::<f32>::new(3usize);
+    #[unroll]
+    for b in 0..3usize {
+        d_scale[b] = 0.0;
+    }
+    #[unroll]
+    for a in 0..3usize {
+        #[unroll]
+        for b in 0..3usize {
+            let mut s = 0.0f32;
+            #[unroll]
+            for k in 0..3usize {
+                s += (ds[a * 3 + k] + ds[k * 3 + a]) * f[RQ + k * 3 + b] * sv[b];
+            }
+            d_scale[b] += s * f[RQ + a * 3 + b];
+            d_rot[a * 3 + b] = s * sv[b];
+        }
+    }
+    #[unroll]
+    for b in 0..3usize {
+        g_scales[gu * 3 + b] = d_scale[b];
+    }
+    let mut dqn = Array::<f32>::new(4usize);
+    quat_to_rot_vjp(f[QN], f[QN + 1], f[QN + 2], f[QN + 3], &d_rot, &mut dqn);
+    let dot = f[QN] * dqn[0] + f[QN + 1] * dqn[1] + f[QN + 2] * dqn[2] + f[QN + 3] * dqn[3];
+    #[unroll]
+    for k in 0..4usize {
+        g_quats[gu * 4 + k] = (dqn[k] - f[QN + k] * dot) / f[QNORM];
+    }
+    g_opacities[gu] = acc[5];
+    g_offsets[gu * 2] = dxy0;
+    g_offsets[gu * 2 + 1] = dxy1;
+}
