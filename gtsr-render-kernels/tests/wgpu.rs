@@ -1,7 +1,8 @@
 //! The wgpu (CubeCL) kernels against the CPU kernels, which are the reference: forward within
 //! 1e-4 and gradients within 1e-3 (relative to the largest reference value) on random scenes
 //! and on every stiff case of the CPU suite; the GPU radix sort and prefix sum against the
-//! host past 2^20 elements. In CI these run on Mesa's lavapipe (CPU Vulkan, Mesa 25).
+//! host past 2^20 elements; the backward pass deterministic and independent of its banding.
+//! In CI these run on Mesa's lavapipe (CPU Vulkan, Mesa 25).
 #![cfg(feature = "wgpu")]
 // Device::ndarray is deprecated upstream; the design card keeps NdArray as the CI backend.
 #![allow(deprecated)]
@@ -282,4 +283,27 @@ fn prefix_sum_matches_host_past_2_pow_20() {
             "exclusive scan of {n} elements differs from the host's"
         );
     }
+}
+
+#[test]
+fn banded_backward_is_deterministic_and_bit_identical() {
+    let scene = random_scene(77, &spec(1500, 3, (96, 80)));
+    let weights = random_weights(3, 96 * 80 * 4);
+    let run = || {
+        weighted_loss_gradients_on(&wgpu(), &scene, DType::F32, AlphaCutoff::Hard, &weights)
+            .unwrap()
+            .grads
+    };
+    let first = run();
+    assert!(first == run(), "two backward passes differ");
+    // One band per tile row (4 KiB of gradient rows) instead of one for the whole image: each
+    // Gaussian's rows are still added in the same order. SAFETY: other tests of this binary may
+    // read the variable concurrently; every value gives the same results.
+    unsafe { std::env::set_var("GTSR_WGPU_BAND_BYTES", "4096") };
+    let banded = run();
+    unsafe { std::env::remove_var("GTSR_WGPU_BAND_BYTES") };
+    assert!(
+        first == banded,
+        "banded backward differs from the single-band one"
+    );
 }

@@ -395,6 +395,95 @@ pub fn finish_bins(
     }
 }
 
+/// First sorted intersection of every tile row: `row_starts[ty]` for `ty <= tiles_y` (the
+/// last entry is the total). One thread per sorted intersection; rows without intersections
+/// get the start of the next non-empty one.
+#[cube(launch)]
+pub fn tile_row_starts(
+    sorted_keys: &[u32],
+    row_starts: &mut [u32],
+    total: u32,
+    tiles_x: u32,
+    tiles_y: u32,
+) {
+    let i = ABSOLUTE_POS as u32;
+    if i >= total {
+        terminate!();
+    }
+    let row = sorted_keys[i as usize] / tiles_x;
+    let mut first = 0u32;
+    if i > 0u32 {
+        first = sorted_keys[i as usize - 1] / tiles_x + 1;
+    }
+    if first <= row {
+        for r in first..row + 1 {
+            row_starts[r as usize] = i;
+        }
+    }
+    if i + 1 == total {
+        for r in row + 1..tiles_y + 1 {
+            row_starts[r as usize] = total;
+        }
+    }
+}
+
+/// Adds the gradient rows of one band of tile rows `[band_lo, band_hi)` (rows stored from
+/// sorted intersection `base`) to each Gaussian's sums. A Gaussian's emissions run row-major
+/// over its tile rectangle, so its emissions in the band are one contiguous range, summed in
+/// order; bands are added one launch after another, so the result is deterministic.
+#[cube(launch)]
+pub fn accumulate_band(
+    order: &[u32],
+    starts: &[u32],
+    proj: &[f32],
+    position: &[u32],
+    rows: &[f32],
+    sums: &mut [f32],
+    n: u32,
+    band_lo: u32,
+    band_hi: u32,
+    base: u32,
+    #[comptime] channels: usize,
+) {
+    let values = channels + 6;
+    let r = ABSOLUTE_POS as u32;
+    if r >= n {
+        terminate!();
+    }
+    let start = starts[r as usize];
+    let end = starts[r as usize + 1];
+    if start < end {
+        let g = order[r as usize];
+        let b = g as usize * PROJ as usize;
+        let tx0 = u32::cast_from(proj[b + 8]) / TILE_SIZE;
+        let ty0 = u32::cast_from(proj[b + 9]) / TILE_SIZE;
+        let tx1 = (u32::cast_from(proj[b + 10]) + TILE_SIZE - 1) / TILE_SIZE;
+        let ty1 = (u32::cast_from(proj[b + 11]) + TILE_SIZE - 1) / TILE_SIZE;
+        let lo = select(band_lo > ty0, band_lo, ty0);
+        let hi = select(band_hi < ty1, band_hi, ty1);
+        if lo < hi {
+            let w = tx1 - tx0;
+            let mut acc = Array::<f32>::new(values);
+            let o = g as usize * values;
+            #[unroll]
+            for v in 0..values {
+                acc[v] = sums[o + v];
+            }
+            for e in start + (lo - ty0) * w..start + (hi - ty0) * w {
+                let row = (position[e as usize] - base) as usize * values;
+                #[unroll]
+                for v in 0..values {
+                    acc[v] += rows[row + v];
+                }
+            }
+            #[unroll]
+            for v in 0..values {
+                sums[o + v] = acc[v];
+            }
+        }
+    }
+}
+
 /// The alpha of a splat at a pixel from its exponent, with the CPU's cap and cut-off:
 /// `out = (alpha, raw, gauss, d alpha / d capped)`, alpha 0 when cut.
 #[cube]
@@ -583,8 +672,9 @@ pub fn rasterize_forward(
     }
 }
 
-/// One cube per tile, one thread per pixel: walks the tile's splats back to front from the
-/// last one any pixel blended and writes, per sorted intersection, the tile's gradient row
+/// One cube per tile of the band of tile rows starting at `first_tile_row`, one thread per
+/// pixel: walks the tile's splats back to front from the last one any pixel blended and
+/// writes, per sorted intersection `i` (at row `i - base`), the tile's gradient row
 /// `d_xy[2], d_conic[3], d_opacity, d_features[C]` (summed over the tile's pixels in a fixed
 /// order, so the result is deterministic).
 #[cube(launch)]
@@ -600,13 +690,16 @@ pub fn rasterize_backward(
     rows: &mut [f32],
     width: u32,
     height: u32,
+    first_tile_row: u32,
+    base: u32,
     #[comptime] channels: usize,
     #[comptime] smooth: bool,
 ) {
     let values = channels + 6;
-    let tile = CUBE_POS_Y * CUBE_COUNT_X + CUBE_POS_X;
+    let tile_y = CUBE_POS_Y + first_tile_row;
+    let tile = tile_y * CUBE_COUNT_X + CUBE_POS_X;
     let ox = CUBE_POS_X * TILE_SIZE;
-    let oy = CUBE_POS_Y * TILE_SIZE;
+    let oy = tile_y * TILE_SIZE;
     let lx = UNIT_POS_X;
     let ly = UNIT_POS_Y;
     let tid = UNIT_POS;
@@ -758,7 +851,7 @@ pub fn rasterize_backward(
             }
             step += 1;
             if any {
-                let row_out = (start + k) as usize * values;
+                let row_out = (start + k - base) as usize * values;
                 #[unroll]
                 for vb in 0..chunks {
                     if vb > 0 {
@@ -814,14 +907,14 @@ fn quat_to_rot_vjp(w: f32, x: f32, y: f32, z: f32, g: &Array<f32>, out: &mut Arr
         - 4.0 * z * (g[0] + g[4]);
 }
 
-/// One thread per Gaussian in depth order: sums its intersection rows (in emission order) and
-/// applies the projection VJP. Gaussians without intersections keep their zeroed gradients.
+/// One thread per Gaussian in depth order: applies the projection VJP to its summed gradient
+/// row (`sums`, in Gaussian order). Gaussians without intersections keep their zeroed
+/// gradients.
 #[cube(launch)]
 pub fn project_backward(
     order: &[u32],
     starts: &[u32],
-    position: &[u32],
-    rows: &[f32],
+    sums: &[f32],
     means: &[f32],
     quats: &[f32],
     scales: &[f32],
@@ -852,14 +945,7 @@ pub fn project_backward(
     let mut acc = Array::<f32>::new(values);
     #[unroll]
     for v in 0..values {
-        acc[v] = 0.0;
-    }
-    for e in start..end {
-        let row = position[e as usize] as usize * values;
-        #[unroll]
-        for v in 0..values {
-            acc[v] += rows[row + v];
-        }
+        acc[v] = sums[gu * values + v];
     }
     #[unroll]
     for c in 0..channels {

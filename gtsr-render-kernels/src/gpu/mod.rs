@@ -266,6 +266,8 @@ struct Bins {
     position: Handle,
     /// Per tile, `[start, end)`.
     ranges: Handle,
+    /// Per sorted intersection, its tile id.
+    sorted_keys: Handle,
     tiles: (u32, u32),
 }
 
@@ -325,6 +327,7 @@ fn bin(client: &Client, x: &Inputs, config: &SplatConfig) -> Bins {
     fill(client, &ranges, 0, 2 * num_tiles);
     let sorted_gids = words(total);
     let position = words(total);
+    let mut sorted_keys = words(1);
     if total > 0 {
         let ikeys = words(total);
         let ivals = words(total);
@@ -356,6 +359,7 @@ fn bin(client: &Client, x: &Inputs, config: &SplatConfig) -> Bins {
             arg(&ranges, 2 * num_tiles),
             total,
         );
+        sorted_keys = skeys;
     }
     Bins {
         cam,
@@ -367,8 +371,40 @@ fn bin(client: &Client, x: &Inputs, config: &SplatConfig) -> Bins {
         sorted_gids,
         position,
         ranges,
+        sorted_keys,
         tiles: (tiles_x, tiles_y),
     }
+}
+
+/// The backward pass writes one gradient row per intersection; rows are produced and summed
+/// per band of tile rows so that their buffer stays below this size (lavapipe, for one, binds
+/// at most 128 MiB per storage buffer). `GTSR_WGPU_BAND_BYTES` overrides it (the tests use a
+/// tiny value to exercise many bands; results are bit-identical either way, because each
+/// Gaussian's rows are added in the same order).
+const BAND_BYTES: usize = 64 << 20;
+
+fn band_bytes() -> usize {
+    std::env::var("GTSR_WGPU_BAND_BYTES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(BAND_BYTES)
+}
+
+/// Bands of tile rows `[a, b)` holding at most `budget` intersections each (a single row
+/// holding more is a band of its own), from the first intersection of every tile row.
+fn bands(row_starts: &[u32], budget: u32) -> Vec<(u32, u32)> {
+    let rows = row_starts.len() as u32 - 1;
+    let mut out = Vec::new();
+    let mut a = 0;
+    while a < rows {
+        let mut b = a + 1;
+        while b < rows && row_starts[b as usize + 1] - row_starts[a as usize] <= budget {
+            b += 1;
+        }
+        out.push((a, b));
+        a = b;
+    }
+    out
 }
 
 fn tensor(
@@ -447,35 +483,85 @@ fn gpu_backward(
     let n = x.n;
     let b = bin(&client, &x, config);
     let values = c as u32 + 6;
-    let rows = client.empty((b.total * values).max(1) as usize * 4);
-    fill_float(&client, &rows, 0.0, b.total * values);
     let bg = background_buffer(&client, config);
     let (width, height) = (config.camera.width, config.camera.height);
-    if b.total > 0 {
-        kernels::rasterize_backward::launch(
-            &client,
-            CubeCount::Static(b.tiles.0, b.tiles.1, 1),
-            CubeDim::new_2d(TILE_SIZE, TILE_SIZE),
-            arg(&b.proj, n * PROJ),
-            arg(&b.sorted_gids, b.total),
-            arg(&b.ranges, 2 * b.tiles.0 * b.tiles.1),
-            arg(&x.features, n * c as u32),
-            arg(&bg, c as u32),
-            arg(&grad, grad_len),
-            arg(&t_final, pixels),
-            arg(&n_contrib, pixels),
-            arg(&rows, b.total * values),
-            width,
-            height,
-            c,
-            config.cutoff == AlphaCutoff::Smooth,
-        );
-    }
     let zeros = |k: u32| {
         let h = client.empty(k.max(1) as usize * 4);
         fill_float(&client, &h, 0.0, k);
         h
     };
+    // Per-Gaussian sums of the gradient rows (Gaussian order).
+    let sums = zeros(n * values);
+    if b.total > 0 {
+        let (tiles_x, tiles_y) = b.tiles;
+        let row_starts = client.empty((tiles_y as usize + 1) * 4);
+        let (count, dim) = elementwise_flat(b.total);
+        kernels::tile_row_starts::launch(
+            &client,
+            count,
+            dim,
+            arg(&b.sorted_keys, b.total),
+            arg(&row_starts, tiles_y + 1),
+            b.total,
+            tiles_x,
+            tiles_y,
+        );
+        // A second small readback: where each tile row's intersections start.
+        let row_starts = scan_sort::download(&client, row_starts, tiles_y as usize + 1);
+        let budget = (band_bytes() / (values as usize * 4)).max(1) as u32;
+        let bands = bands(&row_starts, budget);
+        let most = bands
+            .iter()
+            .map(|&(a, z)| row_starts[z as usize] - row_starts[a as usize])
+            .max()
+            .unwrap_or(0);
+        let rows = client.empty((most * values).max(1) as usize * 4);
+        for (lo, hi) in bands {
+            let base = row_starts[lo as usize];
+            let len = row_starts[hi as usize] - base;
+            if len == 0 {
+                continue;
+            }
+            fill_float(&client, &rows, 0.0, len * values);
+            kernels::rasterize_backward::launch(
+                &client,
+                CubeCount::Static(tiles_x, hi - lo, 1),
+                CubeDim::new_2d(TILE_SIZE, TILE_SIZE),
+                arg(&b.proj, n * PROJ),
+                arg(&b.sorted_gids, b.total),
+                arg(&b.ranges, 2 * tiles_x * tiles_y),
+                arg(&x.features, n * c as u32),
+                arg(&bg, c as u32),
+                arg(&grad, grad_len),
+                arg(&t_final, pixels),
+                arg(&n_contrib, pixels),
+                arg(&rows, most * values),
+                width,
+                height,
+                lo,
+                base,
+                c,
+                config.cutoff == AlphaCutoff::Smooth,
+            );
+            let (count, dim) = elementwise_flat(n);
+            kernels::accumulate_band::launch(
+                &client,
+                count,
+                dim,
+                arg(&b.order, n),
+                arg(&b.starts, n + 1),
+                arg(&b.proj, n * PROJ),
+                arg(&b.position, b.total),
+                arg(&rows, most * values),
+                arg(&sums, n * values),
+                n,
+                lo,
+                hi,
+                base,
+                c,
+            );
+        }
+    }
     let g_means = zeros(3 * n);
     let g_quats = zeros(4 * n);
     let g_scales = zeros(3 * n);
@@ -490,8 +576,7 @@ fn gpu_backward(
             dim,
             arg(&b.order, n),
             arg(&b.starts, n + 1),
-            arg(&b.position, b.total),
-            arg(&rows, b.total * values),
+            arg(&sums, n * values),
             arg(&x.means, 3 * n),
             arg(&x.quats, 4 * n),
             arg(&x.scales, 3 * n),
@@ -654,3 +739,19 @@ gpu_kernels!(Fusion<CubeBackend>);
 
 /// Threads per tile of the blend kernels (one per pixel).
 pub const THREADS_PER_TILE: u32 = TILE_THREADS;
+
+#[cfg(test)]
+mod tests {
+    use super::bands;
+
+    #[test]
+    fn bands_respect_the_budget_and_cover_every_row() {
+        // Rows hold 5, 0, 7, 2, 9 intersections.
+        let starts = [0, 5, 5, 12, 14, 23];
+        assert_eq!(bands(&starts, 100), vec![(0, 5)]);
+        assert_eq!(bands(&starts, 12), vec![(0, 3), (3, 5)]);
+        // A row over the budget is a band of its own.
+        assert_eq!(bands(&starts, 6), vec![(0, 2), (2, 3), (3, 4), (4, 5)]);
+        assert_eq!(bands(&[0, 0], 1), vec![(0, 1)]);
+    }
+}

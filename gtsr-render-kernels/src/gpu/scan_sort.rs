@@ -350,7 +350,8 @@ fn upload(client: &Client, v: &[u32]) -> Handle {
     }
 }
 
-fn download(client: &Client, h: Handle, len: usize) -> Vec<u32> {
+/// Reads `len` `u32`s of a device buffer back to the host.
+pub fn download(client: &Client, h: Handle, len: usize) -> Vec<u32> {
     if len == 0 {
         return Vec::new();
     }
