@@ -20,13 +20,18 @@ if [[ "$(mesa_major)" =~ ^[0-9]+$ ]] && (( $(mesa_major) >= 25 )); then
 else
     sudo=""
     if [[ $(id -u) -ne 0 ]]; then sudo=sudo; fi
-    if ! grep -rqs "bookworm-backports" /etc/apt/sources.list /etc/apt/sources.list.d/; then
-        echo "deb http://deb.debian.org/debian bookworm-backports main" |
-            $sudo tee /etc/apt/sources.list.d/bookworm-backports.list >/dev/null
+    codename=$(. /etc/os-release && echo "${VERSION_CODENAME:-}")
+    release=()
+    if [[ "$codename" == bookworm ]]; then
+        if ! grep -rqs "bookworm-backports" /etc/apt/sources.list /etc/apt/sources.list.d/; then
+            echo "deb http://deb.debian.org/debian bookworm-backports main" |
+                $sudo tee /etc/apt/sources.list.d/bookworm-backports.list >/dev/null
+        fi
+        release=(-t bookworm-backports)
     fi
-    echo "== installing Mesa lavapipe (mesa-vulkan-drivers) from bookworm-backports"
+    echo "== installing Mesa lavapipe (mesa-vulkan-drivers) ${release[*]:-}"
     $sudo apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq -t bookworm-backports \
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${release[@]}" \
         mesa-vulkan-drivers >/dev/null
     if ! [[ "$(mesa_major)" =~ ^[0-9]+$ ]] || (( $(mesa_major) < 25 )); then
         echo "error: mesa-vulkan-drivers >= 25 is needed for the wgpu tests, got '$(mesa_major)'" >&2

@@ -33,7 +33,7 @@ use cubecl::server::Handle;
 
 use crate::backend::{SplatBackend, SplatKernels, SplatPrimitives};
 use crate::config::{AlphaCutoff, FRUSTUM_MARGIN, SplatConfig, TILE_SIZE};
-use kernels::{CAM, PROJ, TILE_THREADS};
+use kernels::{CAM, PROJ};
 use scan_sort::{Client, bits_for, elementwise_flat, exclusive_scan, fill, fill_float, radix_sort};
 
 /// Everything the forward pass produces: the `[H, W, C + 1]` image, the `[N, 4]` aux rows, and
@@ -736,9 +736,6 @@ macro_rules! gpu_kernels {
 
 gpu_kernels!(CubeBackend);
 gpu_kernels!(Fusion<CubeBackend>);
-
-/// Threads per tile of the blend kernels (one per pixel).
-pub const THREADS_PER_TILE: u32 = TILE_THREADS;
 
 #[cfg(test)]
 mod tests {
