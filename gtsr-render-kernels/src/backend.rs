@@ -11,7 +11,7 @@
 
 use std::sync::Arc;
 
-use burn::backend::{Backend, NdArray, backend_extension, tensor::FloatTensor};
+use burn::backend::{Backend, ExtensionType, NdArray, backend_extension, tensor::FloatTensor};
 use burn::tensor::{DType, TensorData};
 use burn_ndarray::NdArrayTensor;
 
@@ -19,8 +19,9 @@ use crate::config::SplatConfig;
 use crate::cpu::{self, ForwardState, HostGaussians};
 use crate::scalar::Real;
 
-/// The raw inputs of one splat op as backend primitives.
-#[derive(Debug, Clone)]
+/// The raw inputs of one splat op as backend primitives (also the layout of their gradients).
+#[derive(Debug, Clone, ExtensionType)]
+#[extension_type(fusion: cfg(feature = "wgpu"))]
 pub struct SplatPrimitives<B: Backend> {
     /// `[N, 3]`
     pub means: FloatTensor<B>,

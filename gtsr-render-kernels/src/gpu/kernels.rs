@@ -324,6 +324,17 @@ pub fn gather_counts(order: &[u32], tiles: &[u32], counts: &mut [u32], n: u32) {
     }
 }
 
+/// The tile rectangle `[tx0, ty0, tx1, ty1)` of projected Gaussian `g` (from its pixel
+/// rectangle, as the CPU's `Splat::tile_rect`).
+#[cube]
+fn tile_rect(proj: &[f32], g: u32, out: &mut Array<u32>) {
+    let b = g as usize * PROJ as usize;
+    out[0] = u32::cast_from(proj[b + 8]) / TILE_SIZE;
+    out[1] = u32::cast_from(proj[b + 9]) / TILE_SIZE;
+    out[2] = (u32::cast_from(proj[b + 10]) + TILE_SIZE - 1) / TILE_SIZE;
+    out[3] = (u32::cast_from(proj[b + 11]) + TILE_SIZE - 1) / TILE_SIZE;
+}
+
 /// One thread per Gaussian in depth order: writes one (tile id, emission index) pair per tile
 /// its rectangle touches, row-major, and the Gaussian of each emission.
 #[cube(launch)]
@@ -345,11 +356,12 @@ pub fn emit_intersections(
     let end = starts[r as usize + 1];
     if start < end {
         let g = order[r as usize];
-        let b = g as usize * PROJ as usize;
-        let tx0 = u32::cast_from(proj[b + 8]) / TILE_SIZE;
-        let ty0 = u32::cast_from(proj[b + 9]) / TILE_SIZE;
-        let tx1 = (u32::cast_from(proj[b + 10]) + TILE_SIZE - 1) / TILE_SIZE;
-        let ty1 = (u32::cast_from(proj[b + 11]) + TILE_SIZE - 1) / TILE_SIZE;
+        let mut rect = Array::<u32>::new(4usize);
+        tile_rect(proj, g, &mut rect);
+        let tx0 = rect[0];
+        let ty0 = rect[1];
+        let tx1 = rect[2];
+        let ty1 = rect[3];
         let mut e = start;
         for ty in ty0..ty1 {
             for tx in tx0..tx1 {
@@ -454,11 +466,12 @@ pub fn accumulate_band(
     let end = starts[r as usize + 1];
     if start < end {
         let g = order[r as usize];
-        let b = g as usize * PROJ as usize;
-        let tx0 = u32::cast_from(proj[b + 8]) / TILE_SIZE;
-        let ty0 = u32::cast_from(proj[b + 9]) / TILE_SIZE;
-        let tx1 = (u32::cast_from(proj[b + 10]) + TILE_SIZE - 1) / TILE_SIZE;
-        let ty1 = (u32::cast_from(proj[b + 11]) + TILE_SIZE - 1) / TILE_SIZE;
+        let mut rect = Array::<u32>::new(4usize);
+        tile_rect(proj, g, &mut rect);
+        let tx0 = rect[0];
+        let ty0 = rect[1];
+        let tx1 = rect[2];
+        let ty1 = rect[3];
         let lo = select(band_lo > ty0, band_lo, ty0);
         let hi = select(band_hi < ty1, band_hi, ty1);
         if lo < hi {

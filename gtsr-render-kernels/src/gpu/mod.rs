@@ -31,10 +31,10 @@ use burn_cubecl::tensor::CubeTensor;
 use cubecl::prelude::*;
 use cubecl::server::Handle;
 
-use crate::backend::{SplatBackend, SplatKernels, SplatPrimitives};
+use crate::backend::{SplatBackend, SplatKernels, SplatPrimitives, SplatPrimitivesMetadata};
 use crate::config::{AlphaCutoff, FRUSTUM_MARGIN, SplatConfig, TILE_SIZE};
 use kernels::{CAM, PROJ};
-use scan_sort::{Client, bits_for, elementwise_flat, exclusive_scan, fill, fill_float, radix_sort};
+use scan_sort::{Client, bits_for, elementwise_flat, exclusive_scan, radix_sort, zero};
 
 /// Everything the forward pass produces: the `[H, W, C + 1]` image, the `[N, 4]` aux rows, and
 /// the `[H, W]` final transmittance and contributor counts the backward pass needs.
@@ -52,40 +52,15 @@ pub struct GpuForward<B: Backend> {
     pub n_contrib: FloatTensor<B>,
 }
 
-/// Gradients of the six inputs.
-#[derive(ExtensionType, Debug)]
-#[extension_type(fusion)]
-pub struct GpuGrads<B: Backend> {
-    /// `[N, 3]`
-    pub means: FloatTensor<B>,
-    /// `[N, 4]`
-    pub quats: FloatTensor<B>,
-    /// `[N, 3]`
-    pub scales: FloatTensor<B>,
-    /// `[N]`
-    pub opacities: FloatTensor<B>,
-    /// `[N, C]`
-    pub features: FloatTensor<B>,
-    /// `[N, 2]`
-    pub xy_offsets: FloatTensor<B>,
-}
-
 fn spec(shape: Vec<usize>, like: &TensorSpec) -> TensorSpec {
     TensorSpec::new(Shape::from(shape), like.dtype)
 }
 
-fn forward_meta(
-    means: &TensorSpec,
-    _quats: &TensorSpec,
-    _scales: &TensorSpec,
-    _opacities: &TensorSpec,
-    features: &TensorSpec,
-    _xy_offsets: &TensorSpec,
-    config: &SplatConfig,
-) -> GpuForwardMetadata {
+fn forward_meta(inputs: &SplatPrimitivesMetadata, config: &SplatConfig) -> GpuForwardMetadata {
     let (h, w) = (config.camera.height as usize, config.camera.width as usize);
+    let means = &inputs.means;
     let n = means.shape[0];
-    let c = features.shape[1];
+    let c = inputs.features.shape[1];
     GpuForwardMetadata {
         image: spec(vec![h, w, c + 1], means),
         aux: spec(vec![n, 4], means),
@@ -104,33 +79,16 @@ pub fn splat_meta(
     xy_offsets: &TensorSpec,
     config: &SplatConfig,
 ) -> (TensorSpec, TensorSpec) {
-    let m = forward_meta(
-        means, quats, scales, opacities, features, xy_offsets, config,
-    );
-    (m.image, m.aux)
-}
-
-#[allow(clippy::too_many_arguments)]
-fn backward_meta(
-    means: &TensorSpec,
-    quats: &TensorSpec,
-    scales: &TensorSpec,
-    opacities: &TensorSpec,
-    features: &TensorSpec,
-    xy_offsets: &TensorSpec,
-    _t_final: &TensorSpec,
-    _n_contrib: &TensorSpec,
-    _grad: &TensorSpec,
-    _config: &SplatConfig,
-) -> GpuGradsMetadata {
-    GpuGradsMetadata {
+    let inputs = SplatPrimitivesMetadata {
         means: means.clone(),
         quats: quats.clone(),
         scales: scales.clone(),
         opacities: opacities.clone(),
         features: features.clone(),
         xy_offsets: xy_offsets.clone(),
-    }
+    };
+    let m = forward_meta(&inputs, config);
+    (m.image, m.aux)
 }
 
 /// The splatting kernels as a CubeCL backend extension: forward with the state the backward
@@ -141,31 +99,20 @@ pub trait SplatGpuOps: Backend {
     /// Forward splat (see [`GpuForward`]).
     #[fusion(meta = forward_meta)]
     fn splat_gpu_forward(
-        means: FloatTensor<Self>,
-        quats: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        opacities: FloatTensor<Self>,
-        features: FloatTensor<Self>,
-        xy_offsets: FloatTensor<Self>,
+        #[extension_type] inputs: SplatPrimitives<Self>,
         config: SplatConfig,
     ) -> GpuForward<Self>;
 
-    /// Backward splat: gradients of the inputs given the gradient of the image and the state
-    /// saved by the forward pass.
-    #[allow(clippy::too_many_arguments)]
-    #[fusion(meta = backward_meta)]
+    /// Backward splat: gradients of the inputs (in their layout) given the gradient of the
+    /// image and the state saved by the forward pass.
+    #[fusion(meta = |inputs, _t_final, _n_contrib, _grad, _config| inputs.clone())]
     fn splat_gpu_backward(
-        means: FloatTensor<Self>,
-        quats: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        opacities: FloatTensor<Self>,
-        features: FloatTensor<Self>,
-        xy_offsets: FloatTensor<Self>,
+        #[extension_type] inputs: SplatPrimitives<Self>,
         t_final: FloatTensor<Self>,
         n_contrib: FloatTensor<Self>,
         grad: FloatTensor<Self>,
         config: SplatConfig,
-    ) -> GpuGrads<Self>;
+    ) -> SplatPrimitives<Self>;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -324,7 +271,7 @@ fn bin(client: &Client, x: &Inputs, config: &SplatConfig) -> Bins {
     exclusive_scan(client, &starts, n + 1);
     let total = scan_sort::read_u32(client, &starts, n + 1, n);
     let ranges = words(2 * num_tiles);
-    fill(client, &ranges, 0, 2 * num_tiles);
+    zero(client, &ranges, 2 * num_tiles);
     let sorted_gids = words(total);
     let position = words(total);
     let mut sorted_keys = words(1);
@@ -469,7 +416,7 @@ fn gpu_backward(
     n_contrib: CubeTensor,
     grad: CubeTensor,
     config: &SplatConfig,
-) -> GpuGrads<CubeBackend> {
+) -> SplatPrimitives<CubeBackend> {
     let (x, client, device) = Inputs::new(p);
     let (t_final, pixels) = buffer(t_final, "t_final");
     let (n_contrib, _) = buffer(n_contrib, "n_contrib");
@@ -487,7 +434,7 @@ fn gpu_backward(
     let (width, height) = (config.camera.width, config.camera.height);
     let zeros = |k: u32| {
         let h = client.empty(k.max(1) as usize * 4);
-        fill_float(&client, &h, 0.0, k);
+        zero(&client, &h, k);
         h
     };
     // Per-Gaussian sums of the gradient rows (Gaussian order).
@@ -522,7 +469,7 @@ fn gpu_backward(
             if len == 0 {
                 continue;
             }
-            fill_float(&client, &rows, 0.0, len * values);
+            zero(&client, &rows, len * values);
             kernels::rasterize_backward::launch(
                 &client,
                 CubeCount::Static(tiles_x, hi - lo, 1),
@@ -594,7 +541,7 @@ fn gpu_backward(
         );
     }
     let n = n as usize;
-    GpuGrads {
+    SplatPrimitives {
         means: tensor(&client, &device, g_means, vec![n, 3]),
         quats: tensor(&client, &device, g_quats, vec![n, 4]),
         scales: tensor(&client, &device, g_scales, vec![n, 3]),
@@ -605,47 +552,18 @@ fn gpu_backward(
 }
 
 impl SplatGpuOps for CubeBackend {
-    fn splat_gpu_forward(
-        means: FloatTensor<Self>,
-        quats: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        opacities: FloatTensor<Self>,
-        features: FloatTensor<Self>,
-        xy_offsets: FloatTensor<Self>,
-        config: SplatConfig,
-    ) -> GpuForward<Self> {
-        let p = SplatPrimitives {
-            means,
-            quats,
-            scales,
-            opacities,
-            features,
-            xy_offsets,
-        };
-        gpu_forward(p, &config)
+    fn splat_gpu_forward(inputs: SplatPrimitives<Self>, config: SplatConfig) -> GpuForward<Self> {
+        gpu_forward(inputs, &config)
     }
 
     fn splat_gpu_backward(
-        means: FloatTensor<Self>,
-        quats: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        opacities: FloatTensor<Self>,
-        features: FloatTensor<Self>,
-        xy_offsets: FloatTensor<Self>,
+        inputs: SplatPrimitives<Self>,
         t_final: FloatTensor<Self>,
         n_contrib: FloatTensor<Self>,
         grad: FloatTensor<Self>,
         config: SplatConfig,
-    ) -> GpuGrads<Self> {
-        let p = SplatPrimitives {
-            means,
-            quats,
-            scales,
-            opacities,
-            features,
-            xy_offsets,
-        };
-        gpu_backward(p, t_final, n_contrib, grad, &config)
+    ) -> SplatPrimitives<Self> {
+        gpu_backward(inputs, t_final, n_contrib, grad, &config)
     }
 }
 
@@ -659,9 +577,15 @@ impl SplatBackend for CubeBackend {
         xy_offsets: FloatTensor<Self>,
         config: SplatConfig,
     ) -> (FloatTensor<Self>, FloatTensor<Self>) {
-        let out = Self::splat_gpu_forward(
-            means, quats, scales, opacities, features, xy_offsets, config,
-        );
+        let inputs = SplatPrimitives {
+            means,
+            quats,
+            scales,
+            opacities,
+            features,
+            xy_offsets,
+        };
+        let out = Self::splat_gpu_forward(inputs, config);
         (out.image, out.aux)
     }
 }
@@ -685,16 +609,7 @@ macro_rules! gpu_kernels {
                 inputs: SplatPrimitives<Self>,
                 config: &SplatConfig,
             ) -> (FloatTensor<Self>, FloatTensor<Self>, Self::SplatState) {
-                let p = inputs.clone();
-                let out = <$ty as SplatGpuOps>::splat_gpu_forward(
-                    p.means,
-                    p.quats,
-                    p.scales,
-                    p.opacities,
-                    p.features,
-                    p.xy_offsets,
-                    config.clone(),
-                );
+                let out = <$ty as SplatGpuOps>::splat_gpu_forward(inputs.clone(), config.clone());
                 let state = GpuSplatState {
                     inputs,
                     t_final: out.t_final,
@@ -708,14 +623,8 @@ macro_rules! gpu_kernels {
                 state: Self::SplatState,
                 grad: FloatTensor<Self>,
             ) -> [FloatTensor<Self>; 6] {
-                let p = state.inputs;
                 let g = <$ty as SplatGpuOps>::splat_gpu_backward(
-                    p.means,
-                    p.quats,
-                    p.scales,
-                    p.opacities,
-                    p.features,
-                    p.xy_offsets,
+                    state.inputs,
                     state.t_final,
                     state.n_contrib,
                     grad,

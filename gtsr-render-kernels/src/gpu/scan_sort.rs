@@ -88,15 +88,6 @@ pub fn fill_u32(data: &mut [u32], value: u32, len: u32) {
     }
 }
 
-/// Fills `data[0..len]` with `value`.
-#[cube(launch)]
-pub fn fill_f32(data: &mut [f32], value: f32, len: u32) {
-    let i = ABSOLUTE_POS as u32;
-    if i < len {
-        data[i as usize] = value;
-    }
-}
-
 /// `dst[0] = src[index]`.
 #[cube(launch)]
 fn copy_one(src: &[u32], dst: &mut [u32], index: u32) {
@@ -121,20 +112,9 @@ pub fn fill(client: &Client, data: &Handle, value: u32, len: u32) {
     );
 }
 
-/// Launches `fill_f32`.
-pub fn fill_float(client: &Client, data: &Handle, value: f32, len: u32) {
-    if len == 0 {
-        return;
-    }
-    let (count, dim) = elementwise_flat(len);
-    fill_f32::launch(
-        client,
-        count,
-        dim,
-        unsafe { BufferArg::from_raw_parts(data.clone(), len as usize) },
-        value,
-        len,
-    );
+/// Zeroes `data[0..len]` (of any 4-byte element type: `0.0f32` is all zero bits).
+pub fn zero(client: &Client, data: &Handle, len: u32) {
+    fill(client, data, 0, len);
 }
 
 /// A grid of `cubes` cubes: along x up to the 65,535 a dispatch dimension allows, then rows
