@@ -49,6 +49,15 @@ pub struct MeshMetrics {
     pub threshold: f64,
     /// Samples drawn on each mesh.
     pub samples: usize,
+    /// Fraction of the ground-truth samples kept: 1 for [`chamfer`]; for [`chamfer_seen`] the
+    /// fraction some eye sees (the rest lie on surfaces no camera sees, such as faces inside a
+    /// non-watertight ground truth).
+    #[serde(default = "one")]
+    pub gt_seen: f64,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// A mesh prepared for exact closest-point queries.
@@ -97,6 +106,28 @@ impl<'a> Target<'a> {
             bvh,
             original,
         })
+    }
+
+    /// Whether the segment from `p` (on the mesh, with the unit normal `n` of its triangle) to
+    /// `eye` is free of the mesh. The ray starts `eps` off the surface on the eye's side, so the
+    /// sample's own triangle does not block it.
+    fn sees(&self, p: Vec3, n: Vec3, eye: Vec3, eps: f32) -> bool {
+        let to_eye = eye - p;
+        let dist = to_eye.length();
+        if dist <= 2.0 * eps {
+            return true;
+        }
+        let d = to_eye / dist;
+        let side = if n.dot(d) >= 0.0 { n } else { -n };
+        let o = p + side * eps + d * eps;
+        let ray = parry3d::query::Ray::new(
+            parry3d::math::Vector::new(o.x, o.y, o.z),
+            parry3d::math::Vector::new(d.x, d.y, d.z),
+        );
+        use parry3d::query::RayCast;
+        self.bvh
+            .cast_local_ray(&ray, dist - 2.0 * eps, false)
+            .is_none()
     }
 
     /// Exact distance from `p` to the mesh and the unit normal of the closest triangle.
@@ -156,6 +187,17 @@ pub fn chamfer(
     threshold: f32,
     seed: u64,
 ) -> Result<MeshMetrics> {
+    chamfer_impl(pred, gt, None, samples, threshold, seed)
+}
+
+fn chamfer_impl(
+    pred: &TriMesh,
+    gt: &TriMesh,
+    eyes: Option<&[Vec3]>,
+    samples: usize,
+    threshold: f32,
+    seed: u64,
+) -> Result<MeshMetrics> {
     if samples == 0 {
         return Err(EvalError::InvalidArgument(
             "chamfer needs at least one sample".into(),
@@ -172,7 +214,40 @@ pub fn chamfer(
     );
     let (pred_target, gt_target) = (pred_target?, gt_target?);
     let pred_samples = sample_surface(pred, samples, seed, "predicted")?;
-    let gt_samples = sample_surface(gt, samples, seed ^ 0x5eed_0f67, "ground-truth")?;
+    let mut gt_samples = sample_surface(gt, samples, seed ^ 0x5eed_0f67, "ground-truth")?;
+    let mut gt_seen = 1.0;
+    if let Some(eyes) = eyes {
+        if eyes.is_empty() || eyes.iter().any(|e| !e.is_finite()) {
+            return Err(EvalError::InvalidArgument(
+                "chamfer_seen needs at least one eye, all finite".into(),
+            ));
+        }
+        let (lo, hi) = gt.bounds();
+        let eps = 1e-5 * (hi - lo).length().max(f32::MIN_POSITIVE);
+        let keep: Vec<bool> = gt_samples
+            .points
+            .par_iter()
+            .zip(&gt_samples.normals)
+            .map(|(&p, &n)| eyes.iter().any(|&e| gt_target.sees(p, n, e, eps)))
+            .collect();
+        let kept = keep.iter().filter(|k| **k).count();
+        if kept == 0 {
+            return Err(EvalError::InvalidArgument(
+                "no ground-truth sample is seen from any eye".into(),
+            ));
+        }
+        gt_seen = kept as f64 / keep.len() as f64;
+        let filter = |v: &mut Vec<Vec3>| {
+            let mut it = keep.iter();
+            v.retain(|_| *it.next().expect("one flag per sample"));
+        };
+        filter(&mut gt_samples.points);
+        filter(&mut gt_samples.normals);
+        let mut it = keep.iter();
+        gt_samples
+            .triangles
+            .retain(|_| *it.next().expect("one flag per sample"));
+    }
     let (accuracy, precision, nc_pred) =
         one_way(&pred_samples, &gt_target, threshold, "predicted")?;
     let (completeness, recall, nc_gt) =
@@ -192,7 +267,26 @@ pub fn chamfer(
         normal_consistency: 0.5 * (nc_pred + nc_gt),
         threshold: threshold as f64,
         samples,
+        gt_seen,
     })
+}
+
+/// [`chamfer`] against the part of the ground truth that can be observed: ground-truth samples
+/// that no eye in `eyes` (camera centres) sees, because the mesh itself blocks every segment
+/// to them, are left out of completeness and recall. They lie on surfaces no image shows,
+/// such as the faces left inside a ground truth made of overlapping closed parts; DTU's
+/// evaluation drops unobserved ground truth in the same way. [`MeshMetrics::gt_seen`] is the
+/// fraction kept. Errors as [`chamfer`] does, and when `eyes` is empty, holds a non-finite
+/// point or sees no sample.
+pub fn chamfer_seen(
+    pred: &TriMesh,
+    gt: &TriMesh,
+    eyes: &[Vec3],
+    samples: usize,
+    threshold: f32,
+    seed: u64,
+) -> Result<MeshMetrics> {
+    chamfer_impl(pred, gt, Some(eyes), samples, threshold, seed)
 }
 
 /// A borrowed image: `width * height * channels` values, row-major, channels interleaved.

@@ -1,7 +1,7 @@
 use glam::Vec3;
 use gtsr_data::ply::TriMesh;
 use gtsr_eval::mesh::{component_sizes, icosphere, is_closed, sample_surface, surface_area};
-use gtsr_eval::{EvalError, chamfer, largest_component, weld};
+use gtsr_eval::{EvalError, chamfer, chamfer_seen, largest_component, weld};
 
 #[test]
 fn icosphere_is_closed_outward_and_close_to_the_sphere() {
@@ -87,6 +87,58 @@ fn concentric_spheres_have_chamfer_close_to_the_radius_gap() {
     let m = chamfer(&a, &b, 50_000, 0.2, 3).unwrap();
     assert_eq!(m.fscore, 1.0);
     assert!(m.normal_consistency > 0.99);
+}
+
+/// Concatenation of two meshes (no welding).
+fn union(a: &TriMesh, b: &TriMesh) -> TriMesh {
+    let off = a.positions.len() as u32;
+    TriMesh {
+        positions: a.positions.iter().chain(&b.positions).copied().collect(),
+        triangles: a
+            .triangles
+            .iter()
+            .copied()
+            .chain(b.triangles.iter().map(|t| t.map(|i| i + off)))
+            .collect(),
+    }
+}
+
+#[test]
+fn hidden_ground_truth_faces_count_in_chamfer_but_not_in_chamfer_seen() {
+    // Ground truth: a unit sphere with a sphere of radius 0.5 left inside it, as a union of
+    // closed parts without a boolean leaves faces inside. The prediction is the outer sphere.
+    let outer = icosphere(Vec3::ZERO, 1.0, 4);
+    let inner = icosphere(Vec3::new(0.1, 0.0, 0.0), 0.5, 3);
+    let gt = union(&outer, &inner);
+    // Eyes 3 away on the six axes: each sees the cap within acos(1/3) of its axis, and
+    // together they see every point of the outer sphere.
+    let eyes: Vec<Vec3> = [Vec3::X, Vec3::Y, Vec3::Z]
+        .into_iter()
+        .flat_map(|a| [3.0 * a, -3.0 * a])
+        .collect();
+    let all = chamfer(&outer, &gt, 20_000, 0.01, 9).unwrap();
+    let seen = chamfer_seen(&outer, &gt, &eyes, 20_000, 0.01, 9).unwrap();
+    // The inner sphere holds 0.25 / 1.25 of the area and sits 0.4-0.6 from the outer one.
+    assert!(all.completeness > 0.07 && all.recall < 0.85, "{all:?}");
+    assert_eq!(all.gt_seen, 1.0);
+    let outer_share = surface_area(&outer) / surface_area(&gt);
+    assert!(
+        (seen.gt_seen - outer_share).abs() < 0.01,
+        "{seen:?} {outer_share}"
+    );
+    assert!(seen.completeness < 1e-3 && seen.recall > 0.99, "{seen:?}");
+    assert_eq!(seen.accuracy, all.accuracy);
+    // Every sample of a lone convex mesh is seen from eyes spread around it.
+    let m = chamfer_seen(&outer, &outer, &eyes, 5_000, 0.01, 2).unwrap();
+    assert_eq!(m.gt_seen, 1.0);
+    // One eye three radii away sees a third of a sphere's area.
+    let m = chamfer_seen(&outer, &outer, &eyes[..1], 5_000, 0.01, 2).unwrap();
+    assert!((m.gt_seen - 1.0 / 3.0).abs() < 0.02, "{m:?}");
+    assert!(chamfer_seen(&outer, &gt, &[], 100, 0.01, 0).is_err());
+    assert!(chamfer_seen(&outer, &gt, &[Vec3::NAN], 100, 0.01, 0).is_err());
+    // An eye inside sees the inner sphere (from within) but none of the outer one.
+    let m = chamfer_seen(&outer, &gt, &[Vec3::new(0.1, 0.0, 0.0)], 5_000, 0.01, 2).unwrap();
+    assert!((m.gt_seen - (1.0 - outer_share)).abs() < 0.02, "{m:?}");
 }
 
 #[test]

@@ -70,6 +70,7 @@ fn markdown_table_formats_and_escapes() {
             method: "GTSR".into(),
             scene: "bear|1".into(),
             chamfer: Some(0.00071),
+            chamfer_whole_gt: Some(0.0152),
             fscore: Some(0.98765),
             psnr: Some(45.281),
             ssim: Some(0.99612),
@@ -88,9 +89,9 @@ fn markdown_table_formats_and_escapes() {
     assert_eq!(lines.len(), 4);
     assert_eq!(
         lines[2],
-        "| GTSR | bear\\|1 | 0.71 | 0.988 | 45.28 | 0.9961 | 2:30:00 | 312000 |"
+        "| GTSR | bear\\|1 | 0.71 | 15.20 | 0.988 | 45.28 | 0.9961 | 2:30:00 | 312000 |"
     );
-    assert_eq!(lines[3], "| PGSR | bear | - | - | - | - | 2:05 | - |");
+    assert_eq!(lines[3], "| PGSR | bear | - | - | - | - | - | 2:05 | - |");
     assert_eq!(format_duration(59.6), "1:00");
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("r.md");

@@ -70,7 +70,7 @@ fn integrate_checks_sizes_and_new_checks_arguments() {
     assert!(TsdfVolume::new(Vec3::ONE, Vec3::ZERO, 0.1, 0.3).is_err());
     assert!(TsdfVolume::new(Vec3::ZERO, Vec3::ONE, 0.0, 0.3).is_err());
     assert!(TsdfVolume::new(Vec3::ZERO, Vec3::ONE, 1e-6, 0.3).is_err());
-    assert!((default_voxel_for_radius(1.0) - 1.0 / 128.0).abs() < 1e-9);
+    assert!((default_voxel_for_radius(1.0) - 1.0 / 256.0).abs() < 1e-9);
 }
 
 #[test]

@@ -73,10 +73,10 @@ pub struct Args {
     /// Evaluations (test PSNR/SSIM, mesh chamfer) along the run for the error-against-time log.
     #[arg(long, default_value_t = 10)]
     pub eval_points: usize,
-    /// TSDF voxel size (scene units); default: the scene radius / 128.
+    /// TSDF voxel size (scene units); default: the scene radius / 256.
     #[arg(long)]
     pub voxel: Option<f32>,
-    /// TSDF truncation (scene units); default: the larger of 32 voxels (a quarter of the
+    /// TSDF truncation (scene units); default: the larger of 64 voxels (a quarter of the
     /// radius) and 6 training-pixel footprints at the object.
     #[arg(long)]
     pub truncation: Option<f32>,

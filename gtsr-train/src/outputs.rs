@@ -8,7 +8,8 @@ use glam::Vec3;
 use gtsr_data::Scene;
 use gtsr_data::ply::{TriMesh, write_ply};
 use gtsr_eval::{
-    ImageRef, MeshMetrics, Timeline, TsdfVolume, chamfer, largest_component, psnr, ssim,
+    ImageRef, MeshMetrics, Timeline, TsdfVolume, chamfer, chamfer_seen, largest_component, psnr,
+    ssim,
 };
 use gtsr_model::checkpoint::write_atomic;
 use gtsr_model::export::write_splat_ply;
@@ -62,7 +63,7 @@ fn default_truncation(voxel: f32, centre: Vec3, cameras: &[&gtsr_data::Camera]) 
 const TRUNCATION_FOOTPRINTS: f32 = 6.0;
 
 /// Voxels in the default truncation.
-const TRUNCATION_VOXELS: f32 = 32.0;
+const TRUNCATION_VOXELS: f32 = 64.0;
 
 /// One evaluation.
 pub struct Evaluation {
@@ -74,8 +75,11 @@ pub struct Evaluation {
     pub psnr_masked: Option<f64>,
     /// Mean test PSNR of C_PBR (stage 2 with PBR).
     pub psnr_pbr: Option<f64>,
-    /// Mesh metrics against the ground truth.
+    /// Mesh metrics against the ground truth that the training cameras see
+    /// ([`chamfer_seen`]).
     pub mesh: Option<MeshMetrics>,
+    /// Mesh metrics against the whole ground truth ([`chamfer`]), hidden faces included.
+    pub mesh_whole_gt: Option<MeshMetrics>,
     /// The extracted mesh.
     pub extracted: Option<TriMesh>,
     /// Seconds spent evaluating.
@@ -336,20 +340,23 @@ pub fn evaluate(
             np += 1;
         }
     }
-    let (mesh, extracted) = match gt {
+    let (mesh, mesh_whole_gt, extracted) = match gt {
         Some(gt) if trainer.is_stage2(trainer.step.saturating_sub(1)) => {
             let m = extract_mesh(trainer, scene, settings, coarse)?;
             if m.triangles.is_empty() {
-                (None, Some(m))
+                (None, None, Some(m))
             } else {
                 let radius = 0.5 * {
                     let (a, b) = gt.bounds();
                     (b - a).max_element()
                 };
-                (Some(chamfer(&m, gt, 50_000, 0.01 * radius, 0)?), Some(m))
+                let eyes: Vec<Vec3> = scene.train.iter().map(|v| v.camera.centre()).collect();
+                let seen = chamfer_seen(&m, gt, &eyes, 50_000, 0.01 * radius, 0)?;
+                let whole = chamfer(&m, gt, 50_000, 0.01 * radius, 0)?;
+                (Some(seen), Some(whole), Some(m))
             }
         }
-        _ => (None, None),
+        _ => (None, None, None),
     };
     let avg = |x: f64, k: usize| if k > 0 { Some(x / k as f64) } else { None };
     Ok(Evaluation {
@@ -358,6 +365,7 @@ pub fn evaluate(
         psnr_masked: avg(pm, nm),
         psnr_pbr: avg(pp, np),
         mesh,
+        mesh_whole_gt,
         extracted,
         seconds: t0.elapsed().as_secs_f64(),
     })
@@ -463,7 +471,10 @@ struct Metrics {
     test_ssim: f64,
     test_psnr_masked: Option<f64>,
     test_psnr_pbr: Option<f64>,
+    /// Against the ground-truth surface the training cameras see.
     mesh: Option<MeshMetrics>,
+    /// Against the whole ground truth, faces no camera sees included.
+    mesh_whole_gt: Option<MeshMetrics>,
     mesh_vertices: usize,
     mesh_triangles: usize,
 }
@@ -503,6 +514,7 @@ pub fn finish(
         test_psnr_masked: e.psnr_masked,
         test_psnr_pbr: e.psnr_pbr,
         mesh: e.mesh,
+        mesh_whole_gt: e.mesh_whole_gt,
         mesh_vertices: mesh.positions.len(),
         mesh_triangles: mesh.triangles.len(),
     };
@@ -534,9 +546,15 @@ pub fn finish(
         e.psnr_pbr
             .map_or(String::new(), |p| format!(", C_PBR PSNR {p:.2} dB")),
         e.mesh.as_ref().map_or(String::new(), |m| format!(
-            "; chamfer {:.5} (x1e3 {:.2}), F-score {:.3} at {:.4}, normal consistency {:.3}",
+            "; chamfer {:.5} (x1e3 {:.2}; {:.1} % of the ground truth seen{}), F-score {:.3} at \
+             {:.4}, normal consistency {:.3}",
             m.chamfer,
             m.chamfer * 1e3,
+            100.0 * m.gt_seen,
+            e.mesh_whole_gt.as_ref().map_or(String::new(), |w| format!(
+                "; x1e3 {:.2} against all of it",
+                w.chamfer * 1e3
+            )),
             m.fscore,
             m.threshold,
             m.normal_consistency
@@ -616,11 +634,11 @@ mod tests {
             )
         };
         let c64 = cam(64);
-        let t64 = default_truncation(0.008, Vec3::ZERO, &[&c64, &c64, &c64]);
+        let t64 = default_truncation(0.003, Vec3::ZERO, &[&c64, &c64, &c64]);
         assert!((t64 - 6.0 * 4.0 / c64.fx).abs() < 1e-4, "{t64}");
         let c256 = cam(256);
         // Fine images: the voxel floor takes over.
-        let t = default_truncation(0.01, Vec3::ZERO, &[&c256]);
+        let t = default_truncation(0.005, Vec3::ZERO, &[&c256]);
         assert!((t - 0.32).abs() < 1e-6, "{t}");
     }
 }

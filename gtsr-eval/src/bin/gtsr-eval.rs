@@ -1,7 +1,7 @@
 //! `gtsr-eval`: mesh and image metrics from the command line.
 //!
 //! ```text
-//! gtsr-eval mesh --pred pred.ply --gt gt.ply [--samples 100000] [--threshold 0.01] [--seed 0] [--json out.json]
+//! gtsr-eval mesh --pred pred.ply --gt gt.ply [--seen-from SCENE] [--samples 100000] [--threshold 0.01] [--seed 0] [--json out.json]
 //! gtsr-eval images --pred renders/ --gt gt/ [--mask] [--json out.json]
 //! gtsr-eval plot --out timeline.png run_a.csv run_b.csv
 //! ```
@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
-use gtsr_eval::{ImageRef, chamfer, psnr, ssim};
+use gtsr_eval::{ImageRef, chamfer, chamfer_seen, psnr, ssim};
 
 #[derive(Parser)]
 #[command(name = "gtsr-eval", about = "Mesh and image metrics for GTSR-rs")]
@@ -29,6 +29,10 @@ enum Command {
         /// Ground-truth mesh (PLY).
         #[arg(long)]
         gt: PathBuf,
+        /// Scene folder (Blender or COLMAP) whose training camera centres are the eyes:
+        /// ground-truth surface that none of them sees is left out (`chamfer_seen`).
+        #[arg(long)]
+        seen_from: Option<PathBuf>,
         /// Area-uniform samples per mesh.
         #[arg(long, default_value_t = 100_000)]
         samples: usize,
@@ -98,6 +102,7 @@ fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
 fn mesh_command(
     pred: &Path,
     gt: &Path,
+    seen_from: Option<&Path>,
     samples: usize,
     threshold: f32,
     seed: u64,
@@ -107,8 +112,16 @@ fn mesh_command(
         .with_context(|| format!("reading predicted mesh {}", pred.display()))?;
     let g = gtsr_data::ply::read_ply(gt)
         .with_context(|| format!("reading ground-truth mesh {}", gt.display()))?;
-    let m = chamfer(&p, &g, samples, threshold, seed)
-        .with_context(|| format!("comparing {} with {}", pred.display(), gt.display()))?;
+    let m = match seen_from {
+        Some(dir) => {
+            let scene = gtsr_data::load_scene(dir, &gtsr_data::LoadOptions::default())
+                .with_context(|| format!("loading the cameras of {}", dir.display()))?;
+            let eyes: Vec<_> = scene.train.iter().map(|v| v.camera.centre()).collect();
+            chamfer_seen(&p, &g, &eyes, samples, threshold, seed)
+        }
+        None => chamfer(&p, &g, samples, threshold, seed),
+    }
+    .with_context(|| format!("comparing {} with {}", pred.display(), gt.display()))?;
     println!(
         "pred:               {} ({} vertices, {} triangles)",
         pred.display(),
@@ -122,6 +135,9 @@ fn mesh_command(
         g.triangles.len()
     );
     println!("samples per mesh:   {}", m.samples);
+    if seen_from.is_some() {
+        println!("ground truth seen:  {:.4} of its samples", m.gt_seen);
+    }
     println!(
         "chamfer:            {:.6} (x1e3: {:.3})",
         m.chamfer,
@@ -240,11 +256,20 @@ fn main() -> Result<()> {
         Command::Mesh {
             pred,
             gt,
+            seen_from,
             samples,
             threshold,
             seed,
             json,
-        } => mesh_command(&pred, &gt, samples, threshold, seed, json.as_deref()),
+        } => mesh_command(
+            &pred,
+            &gt,
+            seen_from.as_deref(),
+            samples,
+            threshold,
+            seed,
+            json.as_deref(),
+        ),
         Command::Images {
             pred,
             gt,
