@@ -140,6 +140,12 @@ impl<'a> Target<'a> {
     }
 }
 
+/// Keeps the elements of `v` whose flag in `keep` (one per element) is set.
+fn retain_flagged<T>(v: &mut Vec<T>, keep: &[bool]) {
+    let mut flags = keep.iter();
+    v.retain(|_| flags.next().copied().unwrap_or(false));
+}
+
 /// One direction: (mean distance, fraction within threshold, mean |cos|).
 fn one_way(
     samples: &crate::mesh::SurfaceSamples,
@@ -237,16 +243,9 @@ fn chamfer_impl(
             ));
         }
         gt_seen = kept as f64 / keep.len() as f64;
-        let filter = |v: &mut Vec<Vec3>| {
-            let mut it = keep.iter();
-            v.retain(|_| *it.next().expect("one flag per sample"));
-        };
-        filter(&mut gt_samples.points);
-        filter(&mut gt_samples.normals);
-        let mut it = keep.iter();
-        gt_samples
-            .triangles
-            .retain(|_| *it.next().expect("one flag per sample"));
+        retain_flagged(&mut gt_samples.points, &keep);
+        retain_flagged(&mut gt_samples.normals, &keep);
+        retain_flagged(&mut gt_samples.triangles, &keep);
     }
     let (accuracy, precision, nc_pred) =
         one_way(&pred_samples, &gt_target, threshold, "predicted")?;
