@@ -117,7 +117,7 @@ fn hidden_ground_truth_faces_count_in_chamfer_but_not_in_chamfer_seen() {
         .flat_map(|a| [3.0 * a, -3.0 * a])
         .collect();
     let all = chamfer(&outer, &gt, 20_000, 0.01, 9).unwrap();
-    let seen = chamfer_seen(&outer, &gt, &eyes, 20_000, 0.01, 9).unwrap();
+    let seen = chamfer_seen(&outer, &gt, &eyes, 1, 20_000, 0.01, 9).unwrap();
     // The inner sphere holds 0.25 / 1.25 of the area and sits 0.4-0.6 from the outer one.
     assert!(all.completeness > 0.07 && all.recall < 0.85, "{all:?}");
     assert_eq!(all.gt_seen, 1.0);
@@ -129,16 +129,55 @@ fn hidden_ground_truth_faces_count_in_chamfer_but_not_in_chamfer_seen() {
     assert!(seen.completeness < 1e-3 && seen.recall > 0.99, "{seen:?}");
     assert_eq!(seen.accuracy, all.accuracy);
     // Every sample of a lone convex mesh is seen from eyes spread around it.
-    let m = chamfer_seen(&outer, &outer, &eyes, 5_000, 0.01, 2).unwrap();
+    let m = chamfer_seen(&outer, &outer, &eyes, 1, 5_000, 0.01, 2).unwrap();
     assert_eq!(m.gt_seen, 1.0);
     // One eye three radii away sees a third of a sphere's area.
-    let m = chamfer_seen(&outer, &outer, &eyes[..1], 5_000, 0.01, 2).unwrap();
+    let m = chamfer_seen(&outer, &outer, &eyes[..1], 1, 5_000, 0.01, 2).unwrap();
     assert!((m.gt_seen - 1.0 / 3.0).abs() < 0.02, "{m:?}");
-    assert!(chamfer_seen(&outer, &gt, &[], 100, 0.01, 0).is_err());
-    assert!(chamfer_seen(&outer, &gt, &[Vec3::NAN], 100, 0.01, 0).is_err());
+    assert!(chamfer_seen(&outer, &gt, &[], 1, 100, 0.01, 0).is_err());
+    assert!(chamfer_seen(&outer, &gt, &[Vec3::NAN], 1, 100, 0.01, 0).is_err());
     // An eye inside sees the inner sphere (from within) but none of the outer one.
-    let m = chamfer_seen(&outer, &gt, &[Vec3::new(0.1, 0.0, 0.0)], 5_000, 0.01, 2).unwrap();
+    let inside = [Vec3::new(0.1, 0.0, 0.0)];
+    let m = chamfer_seen(&outer, &gt, &inside, 1, 5_000, 0.01, 2).unwrap();
     assert!((m.gt_seen - (1.0 - outer_share)).abs() < 0.02, "{m:?}");
+}
+
+#[test]
+fn chamfer_seen_can_ask_for_several_eyes_per_sample() {
+    let sphere = icosphere(Vec3::ZERO, 1.0, 4);
+    // Eyes 3 away on the six axes: the eye on +a (or -a) sees the unit direction u when
+    // u . a > 1/3 (or < -1/3), so u is seen by as many eyes as it has components past 1/3.
+    let eyes: Vec<Vec3> = [Vec3::X, Vec3::Y, Vec3::Z]
+        .into_iter()
+        .flat_map(|a| [3.0 * a, -3.0 * a])
+        .collect();
+    // The expected shares, by quadrature over a Fibonacci sphere.
+    let n = 200_000;
+    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+    let mut counts = [0usize; 4];
+    for i in 0..n {
+        let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+        let r = (1.0 - z * z).sqrt();
+        let u = Vec3::new(
+            r * (golden * i as f32).cos(),
+            r * (golden * i as f32).sin(),
+            z,
+        );
+        let k = u.to_array().iter().filter(|c| c.abs() > 1.0 / 3.0).count();
+        counts[k] += 1;
+    }
+    assert_eq!(counts[0], 0);
+    let share_at_least = |m: usize| counts[m..].iter().sum::<usize>() as f64 / n as f64;
+    for min_eyes in 1..=3 {
+        let m = chamfer_seen(&sphere, &sphere, &eyes, min_eyes, 20_000, 0.01, 4).unwrap();
+        let want = share_at_least(min_eyes);
+        assert!((m.gt_seen - want).abs() < 0.02, "{min_eyes}: {m:?} {want}");
+    }
+    assert!(share_at_least(2) < 0.9 && share_at_least(3) > 0.05);
+    // No point sees four of them; zero eyes or more eyes than there are is an error.
+    assert!(chamfer_seen(&sphere, &sphere, &eyes, 4, 1_000, 0.01, 4).is_err());
+    assert!(chamfer_seen(&sphere, &sphere, &eyes, 0, 1_000, 0.01, 4).is_err());
+    assert!(chamfer_seen(&sphere, &sphere, &eyes, 7, 1_000, 0.01, 4).is_err());
 }
 
 #[test]

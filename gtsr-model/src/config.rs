@@ -349,12 +349,27 @@ pub struct DensifyConfig {
     pub percent_dense: f64,
     /// Prune below this opacity.
     pub min_opacity: f64,
-    /// Reset opacities to at most 0.01 every this many steps (0: never).
+    /// Reset opacities to at most 0.01 every this many steps (0: never), while densification
+    /// still runs (see [`DensifyConfig::resets_after`]).
     pub opacity_reset_every: usize,
     /// Cap on the surface set (densification stops growing it past this).
     pub max_surface: usize,
     /// Cap on the interior set.
     pub max_interior: usize,
+}
+
+impl DensifyConfig {
+    /// Whether the opacities are reset after the step that makes `done` steps in all: every
+    /// [`Self::opacity_reset_every`] steps strictly before [`Self::end`], as 3DGS does. A reset at
+    /// the end itself would leave every Gaussian at opacity 0.01 with no pruning to follow, and
+    /// the layers that pruning removes after the other resets would all grow back: on
+    /// amber_ingot (1500 steps, end 750) that reset took chamfer x1e3 from 28 to 42 within
+    /// 150 steps, and leaving it out gave 22.2 against 30.6 at the end.
+    pub fn resets_after(&self, done: usize) -> bool {
+        self.opacity_reset_every > 0
+            && done.is_multiple_of(self.opacity_reset_every)
+            && done < self.end
+    }
 }
 
 impl Default for DensifyConfig {
@@ -502,5 +517,28 @@ impl TrainConfig {
         } else {
             Err(bad.join("; "))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn opacity_resets_stop_before_the_end_of_densification() {
+        let c = TrainConfig::for_iterations(Components::FULL, 1500);
+        let d = &c.densify;
+        assert_eq!((d.opacity_reset_every, d.end), (150, 750));
+        let resets: Vec<usize> = (1..=c.iterations).filter(|s| d.resets_after(*s)).collect();
+        assert_eq!(resets, vec![150, 300, 450, 600]);
+        // Every reset is followed by a densification (and its pruning).
+        for r in resets {
+            assert!((r + 1..=d.end).any(|s| s >= d.start && s.is_multiple_of(d.every)));
+        }
+        let never = DensifyConfig {
+            opacity_reset_every: 0,
+            ..d.clone()
+        };
+        assert!(!(1..=c.iterations).any(|s| never.resets_after(s)));
     }
 }

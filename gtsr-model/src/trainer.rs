@@ -668,7 +668,7 @@ impl Trainer {
             self.counters.densifications += 1;
             out = Some((ds.report, rep_i));
         }
-        if d.opacity_reset_every > 0 && s1.is_multiple_of(d.opacity_reset_every) && s1 <= d.end {
+        if d.resets_after(s1) {
             let mut host = self.model.surface.to_host();
             reset_opacity(&mut host, 0.01);
             self.model.surface = host.to_device(&self.device);

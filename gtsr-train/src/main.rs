@@ -76,8 +76,8 @@ pub struct Args {
     /// TSDF voxel size (scene units); default: the scene radius / 256.
     #[arg(long)]
     pub voxel: Option<f32>,
-    /// TSDF truncation (scene units); default: the larger of 64 voxels (a quarter of the
-    /// radius) and 6 training-pixel footprints at the object.
+    /// TSDF truncation (scene units); default: the larger of 0.75 times the radius of the mesh
+    /// box and 6 training-pixel footprints at the object.
     #[arg(long)]
     pub truncation: Option<f32>,
     /// Longest image side of the depth maps fused into the mesh (the trained Gaussians are

@@ -376,13 +376,15 @@ pub fn run(args: &Args) -> Result<Outcome> {
     // tenth of the run, so ten evenly spaced evaluations all landed on freshly reset models
     // (test PSNR 12 dB at step 600 of 1500 on wax_knot) and the curve showed the resets, not
     // the progress. Such a point moves one step earlier.
-    let reset = trainer.config.densify.opacity_reset_every;
-    let densify_end = trainer.config.densify.end;
+    let densify = trainer.config.densify.clone();
     let eval_steps: Vec<usize> = (1..=args.eval_points.max(1))
         .map(|k| (iterations * k).div_ceil(args.eval_points.max(1)))
         .map(|s| {
-            let just_reset = reset > 0 && s.is_multiple_of(reset) && s <= densify_end;
-            if just_reset && s > 1 { s - 1 } else { s }
+            if densify.resets_after(s) && s > 1 {
+                s - 1
+            } else {
+                s
+            }
         })
         .collect();
     println!(

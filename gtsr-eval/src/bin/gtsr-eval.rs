@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
-use gtsr_eval::{ImageRef, chamfer, chamfer_seen, psnr, ssim};
+use gtsr_eval::{ImageRef, SEEN_MIN_EYES, chamfer, chamfer_seen, psnr, ssim};
 
 #[derive(Parser)]
 #[command(name = "gtsr-eval", about = "Mesh and image metrics for GTSR-rs")]
@@ -30,9 +30,13 @@ enum Command {
         #[arg(long)]
         gt: PathBuf,
         /// Scene folder (Blender or COLMAP) whose training camera centres are the eyes:
-        /// ground-truth surface that none of them sees is left out (`chamfer_seen`).
+        /// ground-truth surface that fewer than `--min-eyes` of them see is left out
+        /// (`chamfer_seen`).
         #[arg(long)]
         seen_from: Option<PathBuf>,
+        /// With `--seen-from`: how many of the cameras must see a ground-truth sample.
+        #[arg(long, default_value_t = SEEN_MIN_EYES)]
+        min_eyes: usize,
         /// Area-uniform samples per mesh.
         #[arg(long, default_value_t = 100_000)]
         samples: usize,
@@ -102,7 +106,7 @@ fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
 fn mesh_command(
     pred: &Path,
     gt: &Path,
-    seen_from: Option<&Path>,
+    seen_from: Option<(&Path, usize)>,
     samples: usize,
     threshold: f32,
     seed: u64,
@@ -113,11 +117,11 @@ fn mesh_command(
     let g = gtsr_data::ply::read_ply(gt)
         .with_context(|| format!("reading ground-truth mesh {}", gt.display()))?;
     let m = match seen_from {
-        Some(dir) => {
+        Some((dir, min_eyes)) => {
             let scene = gtsr_data::load_scene(dir, &gtsr_data::LoadOptions::default())
                 .with_context(|| format!("loading the cameras of {}", dir.display()))?;
             let eyes: Vec<_> = scene.train.iter().map(|v| v.camera.centre()).collect();
-            chamfer_seen(&p, &g, &eyes, samples, threshold, seed)
+            chamfer_seen(&p, &g, &eyes, min_eyes, samples, threshold, seed)
         }
         None => chamfer(&p, &g, samples, threshold, seed),
     }
@@ -257,6 +261,7 @@ fn main() -> Result<()> {
             pred,
             gt,
             seen_from,
+            min_eyes,
             samples,
             threshold,
             seed,
@@ -264,7 +269,7 @@ fn main() -> Result<()> {
         } => mesh_command(
             &pred,
             &gt,
-            seen_from.as_deref(),
+            seen_from.as_deref().map(|d| (d, min_eyes)),
             samples,
             threshold,
             seed,
