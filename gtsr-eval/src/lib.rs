@@ -22,7 +22,9 @@ pub use error::{EvalError, Result};
 pub use hull::visual_hull;
 pub use marching::{Grid, marching_cubes};
 pub use mesh::{largest_component, sample_surface, weld};
-pub use metrics::{ImageRef, MeshMetrics, SEEN_MIN_EYES, chamfer, chamfer_seen, psnr, ssim};
+pub use metrics::{
+    ImageRef, MeshMetrics, SEEN_MIN_EYES, chamfer, chamfer_seen, chamfer_seen_and_whole, psnr, ssim,
+};
 pub use report::{ReportRow, markdown_table};
 pub use timeline::{Timeline, TimelinePoint, plot_png};
 pub use tsdf::{TsdfVolume, default_voxel_for_radius};

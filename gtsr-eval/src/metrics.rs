@@ -140,46 +140,73 @@ impl<'a> Target<'a> {
     }
 }
 
-/// Keeps the elements of `v` whose flag in `keep` (one per element) is set.
-fn retain_flagged<T>(v: &mut Vec<T>, keep: &[bool]) {
-    let mut flags = keep.iter();
-    v.retain(|_| flags.next().copied().unwrap_or(false));
-}
-
-/// One direction: (mean distance, fraction within threshold, mean |cos|).
-fn one_way(
+/// Per sample: the distance to `target` and `|cos|` between the sample's normal and the
+/// closest triangle's.
+fn closest_all(
     samples: &crate::mesh::SurfaceSamples,
     target: &Target,
-    threshold: f32,
     what: &str,
-) -> Result<(f64, f64, f64)> {
-    let (sum_d, hits, sum_n, bad) = samples
+) -> Result<Vec<(f32, f32)>> {
+    let out: Vec<(f32, f32)> = samples
         .points
         .par_iter()
         .zip(&samples.normals)
         .map(|(&p, &n)| {
             let (d, tn) = target.closest(p);
-            if !d.is_finite() {
-                return (0.0, 0usize, 0.0, 1usize);
-            }
-            (
-                d as f64,
-                (d <= threshold) as usize,
-                n.dot(tn).abs() as f64,
-                0,
-            )
+            (d, n.dot(tn).abs())
         })
-        .reduce(
-            || (0.0, 0, 0.0, 0),
-            |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2, a.3 + b.3),
-        );
+        .collect();
+    let bad = out.iter().filter(|(d, _)| !d.is_finite()).count();
     if bad > 0 {
         return Err(EvalError::NonFinite {
             what: format!("{bad} closest-point distances from {what} samples"),
         });
     }
-    let n = samples.points.len() as f64;
-    Ok((sum_d / n, hits as f64 / n, sum_n / n))
+    Ok(out)
+}
+
+/// One direction over the samples `keep` flags (all when `None`): (mean distance, fraction
+/// within threshold, mean |cos|).
+fn one_way(rows: &[(f32, f32)], keep: Option<&[bool]>, threshold: f32) -> (f64, f64, f64) {
+    let (mut sum_d, mut hits, mut sum_n, mut n) = (0.0f64, 0usize, 0.0f64, 0usize);
+    for (k, &(d, c)) in rows.iter().enumerate() {
+        if keep.is_some_and(|f| !f[k]) {
+            continue;
+        }
+        sum_d += d as f64;
+        hits += (d <= threshold) as usize;
+        sum_n += c as f64;
+        n += 1;
+    }
+    let n = n.max(1) as f64;
+    (sum_d / n, hits as f64 / n, sum_n / n)
+}
+
+/// The metrics from both directions' aggregates.
+fn metrics(
+    (accuracy, precision, nc_pred): (f64, f64, f64),
+    (completeness, recall, nc_gt): (f64, f64, f64),
+    threshold: f32,
+    samples: usize,
+    gt_seen: f64,
+) -> MeshMetrics {
+    let fscore = if precision + recall > 0.0 {
+        2.0 * precision * recall / (precision + recall)
+    } else {
+        0.0
+    };
+    MeshMetrics {
+        chamfer: 0.5 * (accuracy + completeness),
+        accuracy,
+        completeness,
+        precision,
+        recall,
+        fscore,
+        normal_consistency: 0.5 * (nc_pred + nc_gt),
+        threshold: threshold as f64,
+        samples,
+        gt_seen,
+    }
 }
 
 /// Chamfer distance, F-score at `threshold` and normal consistency between a predicted and a
@@ -193,9 +220,10 @@ pub fn chamfer(
     threshold: f32,
     seed: u64,
 ) -> Result<MeshMetrics> {
-    chamfer_impl(pred, gt, None, samples, threshold, seed)
+    Ok(chamfer_impl(pred, gt, None, samples, threshold, seed)?.0)
 }
 
+/// The whole-ground-truth metrics and, with `eyes`, the seen ones, from one set of samples.
 fn chamfer_impl(
     pred: &TriMesh,
     gt: &TriMesh,
@@ -203,7 +231,7 @@ fn chamfer_impl(
     samples: usize,
     threshold: f32,
     seed: u64,
-) -> Result<MeshMetrics> {
+) -> Result<(MeshMetrics, Option<MeshMetrics>)> {
     if samples == 0 {
         return Err(EvalError::InvalidArgument(
             "chamfer needs at least one sample".into(),
@@ -220,67 +248,77 @@ fn chamfer_impl(
     );
     let (pred_target, gt_target) = (pred_target?, gt_target?);
     let pred_samples = sample_surface(pred, samples, seed, "predicted")?;
-    let mut gt_samples = sample_surface(gt, samples, seed ^ 0x5eed_0f67, "ground-truth")?;
-    let mut gt_seen = 1.0;
-    if let Some((eyes, min_eyes)) = eyes {
-        if eyes.is_empty() || eyes.iter().any(|e| !e.is_finite()) {
-            return Err(EvalError::InvalidArgument(
-                "chamfer_seen needs at least one eye, all finite".into(),
-            ));
-        }
-        if min_eyes == 0 || min_eyes > eyes.len() {
-            return Err(EvalError::InvalidArgument(format!(
-                "chamfer_seen: a sample must be seen by 1 to {} eyes, not {min_eyes}",
-                eyes.len()
-            )));
-        }
-        let (lo, hi) = gt.bounds();
-        let eps = 1e-5 * (hi - lo).length().max(f32::MIN_POSITIVE);
-        let keep: Vec<bool> = gt_samples
-            .points
-            .par_iter()
-            .zip(&gt_samples.normals)
-            .map(|(&p, &n)| {
-                eyes.iter()
-                    .filter(|&&e| gt_target.sees(p, n, e, eps))
-                    .take(min_eyes)
-                    .count()
-                    == min_eyes
-            })
-            .collect();
-        let kept = keep.iter().filter(|k| **k).count();
-        if kept == 0 {
-            return Err(EvalError::InvalidArgument(format!(
-                "no ground-truth sample is seen by {min_eyes} of the {} eyes",
-                eyes.len()
-            )));
-        }
-        gt_seen = kept as f64 / keep.len() as f64;
-        retain_flagged(&mut gt_samples.points, &keep);
-        retain_flagged(&mut gt_samples.normals, &keep);
-        retain_flagged(&mut gt_samples.triangles, &keep);
-    }
-    let (accuracy, precision, nc_pred) =
-        one_way(&pred_samples, &gt_target, threshold, "predicted")?;
-    let (completeness, recall, nc_gt) =
-        one_way(&gt_samples, &pred_target, threshold, "ground-truth")?;
-    let fscore = if precision + recall > 0.0 {
-        2.0 * precision * recall / (precision + recall)
-    } else {
-        0.0
+    let gt_samples = sample_surface(gt, samples, seed ^ 0x5eed_0f67, "ground-truth")?;
+    let keep = match eyes {
+        Some((eyes, min_eyes)) => Some(seen_flags(&gt_samples, &gt_target, gt, eyes, min_eyes)?),
+        None => None,
     };
-    Ok(MeshMetrics {
-        chamfer: 0.5 * (accuracy + completeness),
-        accuracy,
-        completeness,
-        precision,
-        recall,
-        fscore,
-        normal_consistency: 0.5 * (nc_pred + nc_gt),
-        threshold: threshold as f64,
+    let to_gt = one_way(
+        &closest_all(&pred_samples, &gt_target, "predicted")?,
+        None,
+        threshold,
+    );
+    let to_pred = closest_all(&gt_samples, &pred_target, "ground-truth")?;
+    let whole = metrics(
+        to_gt,
+        one_way(&to_pred, None, threshold),
+        threshold,
         samples,
-        gt_seen,
-    })
+        1.0,
+    );
+    let seen = keep.map(|keep| {
+        let kept = keep.iter().filter(|k| **k).count();
+        metrics(
+            to_gt,
+            one_way(&to_pred, Some(&keep), threshold),
+            threshold,
+            samples,
+            kept as f64 / keep.len() as f64,
+        )
+    });
+    Ok((whole, seen))
+}
+
+/// Which ground-truth samples at least `min_eyes` of `eyes` see; errors as [`chamfer_seen`].
+fn seen_flags(
+    gt_samples: &crate::mesh::SurfaceSamples,
+    gt_target: &Target,
+    gt: &TriMesh,
+    eyes: &[Vec3],
+    min_eyes: usize,
+) -> Result<Vec<bool>> {
+    if eyes.is_empty() || eyes.iter().any(|e| !e.is_finite()) {
+        return Err(EvalError::InvalidArgument(
+            "chamfer_seen needs at least one eye, all finite".into(),
+        ));
+    }
+    if min_eyes == 0 || min_eyes > eyes.len() {
+        return Err(EvalError::InvalidArgument(format!(
+            "chamfer_seen: a sample must be seen by 1 to {} eyes, not {min_eyes}",
+            eyes.len()
+        )));
+    }
+    let (lo, hi) = gt.bounds();
+    let eps = 1e-5 * (hi - lo).length().max(f32::MIN_POSITIVE);
+    let keep: Vec<bool> = gt_samples
+        .points
+        .par_iter()
+        .zip(&gt_samples.normals)
+        .map(|(&p, &n)| {
+            eyes.iter()
+                .filter(|&&e| gt_target.sees(p, n, e, eps))
+                .take(min_eyes)
+                .count()
+                == min_eyes
+        })
+        .collect();
+    if !keep.contains(&true) {
+        return Err(EvalError::InvalidArgument(format!(
+            "no ground-truth sample is seen by {min_eyes} of the {} eyes",
+            eyes.len()
+        )));
+    }
+    Ok(keep)
 }
 
 /// [`chamfer`] against the part of the ground truth that can be observed: ground-truth samples
@@ -301,7 +339,22 @@ pub fn chamfer_seen(
     threshold: f32,
     seed: u64,
 ) -> Result<MeshMetrics> {
-    chamfer_impl(pred, gt, Some((eyes, min_eyes)), samples, threshold, seed)
+    Ok(chamfer_seen_and_whole(pred, gt, eyes, min_eyes, samples, threshold, seed)?.0)
+}
+
+/// [`chamfer_seen`] and [`chamfer`] together, `(seen, whole)`, from one set of samples: the
+/// predicted side and the distances are computed once.
+pub fn chamfer_seen_and_whole(
+    pred: &TriMesh,
+    gt: &TriMesh,
+    eyes: &[Vec3],
+    min_eyes: usize,
+    samples: usize,
+    threshold: f32,
+    seed: u64,
+) -> Result<(MeshMetrics, MeshMetrics)> {
+    let (whole, seen) = chamfer_impl(pred, gt, Some((eyes, min_eyes)), samples, threshold, seed)?;
+    Ok((seen.expect("eyes were given"), whole))
 }
 
 /// The number of eyes that must see a ground-truth sample for [`chamfer_seen`] to keep it, as

@@ -8,7 +8,7 @@ use glam::Vec3;
 use gtsr_data::Scene;
 use gtsr_data::ply::{TriMesh, write_ply};
 use gtsr_eval::{
-    ImageRef, MeshMetrics, SEEN_MIN_EYES, Timeline, TsdfVolume, chamfer, chamfer_seen,
+    ImageRef, MeshMetrics, SEEN_MIN_EYES, Timeline, TsdfVolume, chamfer_seen_and_whole,
     largest_component, psnr, ssim,
 };
 use gtsr_model::checkpoint::write_atomic;
@@ -86,9 +86,9 @@ pub struct Evaluation {
     /// Mean test PSNR of C_PBR (stage 2 with PBR).
     pub psnr_pbr: Option<f64>,
     /// Mesh metrics against the ground truth that the training cameras see
-    /// ([`chamfer_seen`]).
+    /// ([`gtsr_eval::chamfer_seen`]).
     pub mesh: Option<MeshMetrics>,
-    /// Mesh metrics against the whole ground truth ([`chamfer`]), hidden faces included;
+    /// Mesh metrics against the whole ground truth ([`gtsr_eval::chamfer`]), hidden faces included;
     /// only for the final (not coarse) evaluation.
     pub mesh_whole_gt: Option<MeshMetrics>,
     /// The extracted mesh.
@@ -362,14 +362,10 @@ pub fn evaluate(
                     (b - a).max_element()
                 };
                 let eyes: Vec<Vec3> = scene.train.iter().map(|v| v.camera.centre()).collect();
-                let seen = chamfer_seen(&m, gt, &eyes, SEEN_MIN_EYES, 50_000, 0.01 * radius, 0)?;
+                let (seen, whole) =
+                    chamfer_seen_and_whole(&m, gt, &eyes, SEEN_MIN_EYES, 50_000, 0.01 * radius, 0)?;
                 // The whole-ground-truth number is reported only at the end (`finish`).
-                let whole = if coarse {
-                    None
-                } else {
-                    Some(chamfer(&m, gt, 50_000, 0.01 * radius, 0)?)
-                };
-                (Some(seen), whole, Some(m))
+                (Some(seen), (!coarse).then_some(whole), Some(m))
             }
         }
         _ => (None, None, None),

@@ -10,7 +10,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_eval::{
-    ReportRow, SEEN_MIN_EYES, Timeline, chamfer, chamfer_seen, markdown_table, plot_png,
+    ReportRow, SEEN_MIN_EYES, Timeline, chamfer_seen_and_whole, markdown_table, plot_png,
     visual_hull,
 };
 
@@ -96,8 +96,8 @@ fn hull_row(
     let hull = visual_hull(&views, lo - pad, hi + pad, hull_res)?;
     let radius = 0.5 * (hi - lo).max_element();
     let eyes: Vec<_> = scene.train.iter().map(|v| v.camera.centre()).collect();
-    let m = chamfer_seen(&hull, &gt, &eyes, SEEN_MIN_EYES, 50_000, 0.01 * radius, 0)?;
-    let whole = chamfer(&hull, &gt, 50_000, 0.01 * radius, 0)?;
+    let (m, whole) =
+        chamfer_seen_and_whole(&hull, &gt, &eyes, SEEN_MIN_EYES, 50_000, 0.01 * radius, 0)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     gtsr_data::ply::write_ply(&out.join("mesh.ply"), &hull)?;
     Ok(ReportRow {
