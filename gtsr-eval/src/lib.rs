@@ -1,4 +1,5 @@
 //! Evaluation for GTSR-rs: mesh metrics (chamfer distance, F-score, normal consistency),
+//! rendered depth and normals against a ground-truth mesh,
 //! image metrics (PSNR, SSIM), TSDF fusion and marching cubes for mesh extraction, visual
 //! hulls, error-against-run-time logs and plots, and markdown result tables.
 //!
@@ -9,6 +10,7 @@
 
 #![warn(missing_docs)]
 
+pub mod depth;
 pub mod error;
 pub mod hull;
 pub mod marching;
@@ -18,6 +20,7 @@ pub mod report;
 pub mod timeline;
 pub mod tsdf;
 
+pub use depth::{DepthComparison, DepthMetrics, MeshDepth, MeshRaycaster};
 pub use error::{EvalError, Result};
 pub use hull::visual_hull;
 pub use marching::{Grid, marching_cubes};

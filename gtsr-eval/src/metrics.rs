@@ -60,8 +60,8 @@ fn one() -> f64 {
     1.0
 }
 
-/// A mesh prepared for exact closest-point queries.
-struct Target<'a> {
+/// A mesh prepared for exact closest-point queries and ray casts.
+pub(crate) struct Target<'a> {
     mesh: &'a TriMesh,
     bvh: parry3d::shape::TriMesh,
     /// Original triangle index of each triangle kept in `bvh`.
@@ -69,7 +69,7 @@ struct Target<'a> {
 }
 
 impl<'a> Target<'a> {
-    fn new(mesh: &'a TriMesh, what: &str) -> Result<Self> {
+    pub(crate) fn new(mesh: &'a TriMesh, what: &str) -> Result<Self> {
         validate(mesh, what)?;
         let mut original = Vec::with_capacity(mesh.triangles.len());
         let mut tris = Vec::with_capacity(mesh.triangles.len());
@@ -128,6 +128,22 @@ impl<'a> Target<'a> {
         self.bvh
             .cast_local_ray(&ray, dist - 2.0 * eps, false)
             .is_none()
+    }
+
+    /// The first hit of the ray from `o` along the unit direction `d`: the distance along the
+    /// ray and the unit normal of the triangle hit, turned to face the ray's origin.
+    pub(crate) fn first_hit(&self, o: Vec3, d: Vec3) -> Option<(f32, Vec3)> {
+        use parry3d::query::RayCast;
+        let ray = parry3d::query::Ray::new(
+            parry3d::math::Vector::new(o.x, o.y, o.z),
+            parry3d::math::Vector::new(d.x, d.y, d.z),
+        );
+        let hit = self
+            .bvh
+            .cast_local_ray_and_get_normal(&ray, f32::MAX, false)?;
+        let n = Vec3::new(hit.normal.x, hit.normal.y, hit.normal.z).normalize_or_zero();
+        let n = if n.dot(d) > 0.0 { -n } else { n };
+        (hit.time_of_impact.is_finite() && n != Vec3::ZERO).then_some((hit.time_of_impact, n))
     }
 
     /// Exact distance from `p` to the mesh and the unit normal of the closest triangle.

@@ -22,6 +22,16 @@ pub struct ReportRow {
     pub chamfer_whole_gt: Option<f64>,
     /// F-score in `[0, 1]`.
     pub fscore: Option<f64>,
+    /// Median absolute error of the rendered test-view depth against the ground truth's (mesh
+    /// units; printed times 1e3; [`crate::DepthMetrics::depth_median_abs`]).
+    #[serde(default)]
+    pub depth_err: Option<f64>,
+    /// Mean signed depth error (positive: behind the true surface; printed times 1e3).
+    #[serde(default)]
+    pub depth_bias: Option<f64>,
+    /// Mean angle between rendered and true normals, degrees.
+    #[serde(default)]
+    pub normal_err_deg: Option<f64>,
     /// PSNR in dB.
     pub psnr: Option<f64>,
     /// SSIM.
@@ -56,21 +66,25 @@ pub fn format_duration(seconds: f64) -> String {
 }
 
 /// A GitHub-flavoured markdown table: method, scene, chamfer x 1e3 (2 decimals), the same
-/// against the whole ground truth, F-score (3), PSNR (2), SSIM (4), time (`h:mm:ss`),
-/// Gaussians.
+/// against the whole ground truth, F-score (3), depth error and bias x 1e3 (2), normal error
+/// (degrees, 1), PSNR (2), SSIM (4), time (`h:mm:ss`), Gaussians.
 pub fn markdown_table(rows: &[ReportRow]) -> String {
     let mut s = String::from(
-        "| method | scene | chamfer x1e3 | chamfer x1e3, whole GT | F-score | PSNR | SSIM | time | \
-         Gaussians |\n|---|---|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| method | scene | chamfer x1e3 | chamfer x1e3, whole GT | F-score | depth err x1e3 | \
+         depth bias x1e3 | normal err (deg) | PSNR | SSIM | time | Gaussians |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
         s.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
             cell(&r.method),
             cell(&r.scene),
             opt(r.chamfer, |v| format!("{:.2}", v * 1e3)),
             opt(r.chamfer_whole_gt, |v| format!("{:.2}", v * 1e3)),
             opt(r.fscore, |v| format!("{v:.3}")),
+            opt(r.depth_err, |v| format!("{:.2}", v * 1e3)),
+            opt(r.depth_bias, |v| format!("{:+.2}", v * 1e3)),
+            opt(r.normal_err_deg, |v| format!("{v:.1}")),
             opt(r.psnr, |v| format!("{v:.2}")),
             opt(r.ssim, |v| format!("{v:.4}")),
             opt(r.seconds, format_duration),

@@ -72,6 +72,9 @@ fn markdown_table_formats_and_escapes() {
             chamfer: Some(0.00071),
             chamfer_whole_gt: Some(0.0152),
             fscore: Some(0.98765),
+            depth_err: Some(0.001234),
+            depth_bias: Some(-0.0004),
+            normal_err_deg: Some(7.26),
             psnr: Some(45.281),
             ssim: Some(0.99612),
             seconds: Some(9000.4),
@@ -89,9 +92,13 @@ fn markdown_table_formats_and_escapes() {
     assert_eq!(lines.len(), 4);
     assert_eq!(
         lines[2],
-        "| GTSR | bear\\|1 | 0.71 | 15.20 | 0.988 | 45.28 | 0.9961 | 2:30:00 | 312000 |"
+        "| GTSR | bear\\|1 | 0.71 | 15.20 | 0.988 | 1.23 | -0.40 | 7.3 | 45.28 | 0.9961 | 2:30:00 | \
+         312000 |"
     );
-    assert_eq!(lines[3], "| PGSR | bear | - | - | - | - | - | 2:05 | - |");
+    assert_eq!(
+        lines[3],
+        "| PGSR | bear | - | - | - | - | - | - | - | - | 2:05 | - |"
+    );
     assert_eq!(format_duration(59.6), "1:00");
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("r.md");

@@ -396,6 +396,8 @@ pub enum Init {
     Random,
     /// Random points kept only where every training mask covers their projection.
     MaskCarved,
+    /// Points on the boundary of the mask-carved volume (the masks' visual hull).
+    HullSurface,
 }
 
 /// Everything that defines a training run.

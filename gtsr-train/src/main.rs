@@ -61,7 +61,8 @@ pub struct Args {
     /// Largest SH degree (0-3).
     #[arg(long)]
     pub sh_degree: Option<u32>,
-    /// Initialisation: random (the paper) or mask-carved.
+    /// Initialisation: random (the paper), mask-carved (inside the masks' hull) or hull-surface
+    /// (on its boundary).
     #[arg(long)]
     pub init: Option<String>,
     /// Seed of every random choice.
@@ -87,9 +88,15 @@ pub struct Args {
     pub mesh_resolution: Option<u32>,
     /// Fuse the depth maps alone: without this, when every view has a mask, the TSDF keeps the
     /// masks' visual hull too and the surface never leaves a silhouette (see gtsr-eval's
-    /// `TsdfVolume::with_silhouette_carving`). Shows what the rendered depth alone gives.
+    /// `TsdfVolume::with_silhouette_carving`). With this, pixels outside the masks cast no
+    /// votes at all (depth is fused where the render has it, as PGSR and 2DGS do): shows what
+    /// the rendered depth alone gives.
     #[arg(long)]
     pub no_silhouette_carving: bool,
+    /// Fuse the masks alone, no rendered depth: the visual hull on the fusion grid. The
+    /// baseline that says what the rendered depth adds to the mesh.
+    #[arg(long, conflicts_with = "no_silhouette_carving")]
+    pub silhouettes_only: bool,
     /// Save a checkpoint every this many steps (0: only at the end or on Ctrl-C).
     #[arg(long, default_value_t = 500)]
     pub checkpoint_every: usize,

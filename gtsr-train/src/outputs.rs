@@ -8,8 +8,8 @@ use glam::Vec3;
 use gtsr_data::Scene;
 use gtsr_data::ply::{TriMesh, write_ply};
 use gtsr_eval::{
-    ImageRef, MeshMetrics, SEEN_MIN_EYES, Timeline, TsdfVolume, chamfer_seen_and_whole,
-    largest_component, psnr, ssim,
+    DepthComparison, DepthMetrics, ImageRef, MeshMetrics, MeshRaycaster, SEEN_MIN_EYES, Timeline,
+    TsdfVolume, chamfer_seen_and_whole, largest_component, psnr, ssim,
 };
 use gtsr_model::checkpoint::write_atomic;
 use gtsr_model::export::write_splat_ply;
@@ -32,20 +32,31 @@ pub struct MeshSettings {
     pub fusion_views: Vec<gtsr_data::View>,
     /// Keep the masks' visual hull in the TSDF (when every view has a mask).
     pub silhouette_carving: bool,
+    /// Fuse the rendered depth (false: silhouettes alone, the hull on the fusion grid).
+    pub fuse_depth: bool,
     /// The mesh box from the masks ([`hull_bounds`], computed once per run); `None`: from the
     /// surface Gaussians at each extraction.
     pub bounds: Option<(Vec3, Vec3)>,
 }
 
-/// The default truncation: the larger of [`TRUNCATION_RADII`] times the radius of the mesh box
-/// and [`TRUNCATION_FOOTPRINTS`] pixel footprints of the *training* images at the box centre
-/// (median over the views). A truncation below the error of the rendered depth erodes the
-/// object: KinectFusion drops observations far behind the measured depth but keeps those in
-/// front, so a view whose depth runs too far behind the surface votes "free" (clamped to
-/// +truncation) at the surface, and one whose depth is too near does not vote at all. A long
-/// truncation averages those votes instead. Chamfer x1e3, re-extracting one model per scene
-/// (64 px, 1500 steps, voxel radius / 256; radius about 1 on all three; the amber_ingot model
-/// trained without the reset at the end of densification, the other two with it):
+/// The default truncation. With silhouette carving (or free-space votes from outside the
+/// masks): the larger of [`TRUNCATION_RADII`] times the radius of the mesh box and
+/// [`TRUNCATION_FOOTPRINTS`] pixel footprints of the *training* images at the box centre
+/// (median over the views). Without free-space votes (`--no-silhouette-carving` on a masked
+/// scene): [`DEPTH_ONLY_TRUNCATION_FOOTPRINTS`] footprints; the wax_knot full model (64 px,
+/// footprint 0.045) fused from its depth alone measured chamfer x1e3 37.8 at 6 footprints,
+/// 24.3 at 2 and 29.9 at 1 (with the long truncation the surface swelled past the object:
+/// 192).
+///
+/// What the long truncation does, measured on 2026-11-22: the rendered depth lies behind the
+/// true surface (median error 0.05 to 0.09 over the test views' pixels, every method, 64 px;
+/// `test_depth` in `metrics.json`), and
+/// KinectFusion keeps the votes in front of the measured depth and drops those far behind it.
+/// A short truncation therefore puts the surface at the rendered depth and erodes the object;
+/// a long one lets the "inside" votes of the views that see a point from the far side
+/// (occluded, up to a truncation behind their depth) outweigh the "free" votes of the views
+/// that see it, and the carved field ends at the masks' visual hull. Chamfer x1e3 of one
+/// model per scene at each truncation (64 px, 1500 steps, voxel radius / 256, radius about 1):
 ///
 /// | truncation | 0.25 (0.27) | 0.4 | 0.625 | 0.8 | 1.0 | 1.2 |
 /// |---|---:|---:|---:|---:|---:|---:|
@@ -53,9 +64,17 @@ pub struct MeshSettings {
 /// | wax_knot | 1.84 | 1.80 | 1.80 | | 1.79 | |
 /// | built-in bear | 14.4 | | 3.15 | | 3.03 | |
 ///
-/// The price of a long truncation is on parts thinner than it: behind a thin wall, the front
-/// views' "inside" votes reach past the back face and pull it outward.
-fn default_truncation(radius: f32, centre: Vec3, cameras: &[&gtsr_data::Camera]) -> f32 {
+/// The long truncation was chosen from this table, but what it converges to is the hull: the
+/// same fusion with every depth map left out (`--silhouettes-only`) gives 1.79 on wax_knot and
+/// 1.95 on amber_ingot, as the full model's fused mesh does (`cargo xtask bench-recon`). For the
+/// depth to add to the masks it has to come nearer the surface first: its median error is
+/// more than a training pixel's footprint (0.045).
+fn default_truncation(
+    radius: f32,
+    centre: Vec3,
+    cameras: &[&gtsr_data::Camera],
+    free_space_votes: bool,
+) -> f32 {
     let mut footprints: Vec<f32> = cameras
         .iter()
         .map(|c| {
@@ -66,11 +85,18 @@ fn default_truncation(radius: f32, centre: Vec3, cameras: &[&gtsr_data::Camera])
         .collect();
     footprints.sort_by(f32::total_cmp);
     let footprint = footprints.get(footprints.len() / 2).copied().unwrap_or(0.0);
-    (TRUNCATION_RADII * radius).max(TRUNCATION_FOOTPRINTS * footprint)
+    if free_space_votes {
+        (TRUNCATION_RADII * radius).max(TRUNCATION_FOOTPRINTS * footprint)
+    } else {
+        DEPTH_ONLY_TRUNCATION_FOOTPRINTS * footprint
+    }
 }
 
 /// Pixel footprints in the default truncation.
 const TRUNCATION_FOOTPRINTS: f32 = 6.0;
+
+/// Pixel footprints in the default truncation without free-space votes.
+const DEPTH_ONLY_TRUNCATION_FOOTPRINTS: f32 = 2.0;
 
 /// Mesh-box radii in the default truncation.
 const TRUNCATION_RADII: f32 = 0.75;
@@ -91,6 +117,9 @@ pub struct Evaluation {
     /// Mesh metrics against the whole ground truth ([`gtsr_eval::chamfer`]), hidden faces included;
     /// only for the final (not coarse) evaluation.
     pub mesh_whole_gt: Option<MeshMetrics>,
+    /// Rendered depth and normals of the test views against the ground-truth mesh, inside the
+    /// masks; only for the final evaluation ([`test_view_geometry`]).
+    pub depth: Option<DepthMetrics>,
     /// The extracted mesh.
     pub extracted: Option<TriMesh>,
     /// Seconds spent evaluating.
@@ -204,12 +233,22 @@ pub fn extract_mesh(
         voxel *= 2.5;
     }
     let cameras: Vec<&gtsr_data::Camera> = scene.train.iter().map(|v| &v.camera).collect();
+    let masked = host_views.iter().all(|v| v.mask.is_some());
+    // Free-space votes from outside the masks: with carving they feed the hull field; without
+    // carving on a masked scene (depth alone, `--no-silhouette-carving`) there are none, as in
+    // PGSR's and 2DGS's TSDF fusion: each such vote is +truncation on every voxel along the
+    // ray, and near the silhouettes it pulled the surface outward (wax_knot's full model, 64 px:
+    // chamfer x1e3 14.0 with them). Without masks, the pixels the render leaves empty vote.
+    let free_space_votes = settings.silhouette_carving || !masked;
+    if !(settings.fuse_depth || (masked && settings.silhouette_carving)) {
+        anyhow::bail!("fusing silhouettes alone needs a mask on every training view and carving");
+    }
     let trunc = settings
         .truncation
-        .unwrap_or_else(|| default_truncation(radius, 0.5 * (lo + hi), &cameras))
+        .unwrap_or_else(|| default_truncation(radius, 0.5 * (lo + hi), &cameras, free_space_votes))
         .max(voxel);
     let mut tsdf = TsdfVolume::new(lo, hi, voxel, trunc)?;
-    if settings.silhouette_carving && host_views.iter().all(|v| v.mask.is_some()) {
+    if settings.silhouette_carving && masked {
         // The object lies inside every mask: the surface stays inside the masks' hull.
         tsdf = tsdf.with_silhouette_carving();
     }
@@ -259,7 +298,10 @@ pub fn extract_mesh(
         let plane = host_vec(g.plane);
         let (w, h) = (data.camera.width as usize, data.camera.height as usize);
         drop_depth_edges(&mut depth, &normal, &plane, &rays, w, h, data.camera.fx);
-        tsdf.integrate(&data.camera, &depth, Some(&mask))?;
+        if !settings.fuse_depth {
+            depth.fill(0.0);
+        }
+        tsdf.integrate(&data.camera, &depth, free_space_votes.then_some(&mask[..]))?;
     }
     Ok(largest_component(&tsdf.extract_mesh()))
 }
@@ -370,6 +412,10 @@ pub fn evaluate(
         }
         _ => (None, None, None),
     };
+    let depth = match gt {
+        Some(gt) if !coarse => test_view_geometry(trainer, tests, scene, gt)?,
+        _ => None,
+    };
     let avg = |x: f64, k: usize| if k > 0 { Some(x / k as f64) } else { None };
     Ok(Evaluation {
         psnr: p / n.max(1) as f64,
@@ -378,9 +424,42 @@ pub fn evaluate(
         psnr_pbr: avg(pp, np),
         mesh,
         mesh_whole_gt,
+        depth,
         extracted,
         seconds: t0.elapsed().as_secs_f64(),
     })
+}
+
+/// The surface Gaussians' unbiased depth and blended normal on the test views against the
+/// ground-truth mesh's (ray cast through each pixel centre), over the pixels inside the
+/// ground-truth mask (all pixels without one) that the surface covers (coverage >= 0.5).
+/// The depth is the raw render, before the grazing and edge filters of the fusion.
+fn test_view_geometry(
+    trainer: &Trainer,
+    tests: &[ViewTensors],
+    scene: &Scene,
+    gt: &TriMesh,
+) -> Result<Option<DepthMetrics>> {
+    let caster = MeshRaycaster::new(gt, "ground-truth mesh")?;
+    let mut cmp = DepthComparison::new();
+    for (v, data) in tests.iter().zip(&scene.test) {
+        let truth = caster.render(&data.camera);
+        let g = trainer.model.render_depth(&v.camera, &v.rays)?;
+        let depth = host_vec(g.depth);
+        let normal = host_vec(g.normal);
+        let cov = host_vec(g.coverage);
+        let select: Vec<bool> = match &data.mask {
+            Some(m) => m
+                .iter()
+                .zip(&cov)
+                .map(|(m, c)| *m > 0.5 && *c >= 0.5)
+                .collect(),
+            None => cov.iter().map(|c| *c >= 0.5).collect(),
+        };
+        cmp.add(&truth, &depth, &normal, &select)
+            .with_context(|| format!("comparing the depth of test view {}", data.name))?;
+    }
+    Ok(cmp.finish())
 }
 
 /// Writes `value` as pretty JSON, atomically.
@@ -487,6 +566,8 @@ struct Metrics {
     mesh: Option<MeshMetrics>,
     /// Against the whole ground truth, faces no camera sees included.
     mesh_whole_gt: Option<MeshMetrics>,
+    /// Rendered test-view depth and normals against the ground-truth mesh's.
+    test_depth: Option<DepthMetrics>,
     mesh_vertices: usize,
     mesh_triangles: usize,
 }
@@ -527,6 +608,7 @@ pub fn finish(
         test_psnr_pbr: e.psnr_pbr,
         mesh: e.mesh,
         mesh_whole_gt: e.mesh_whole_gt,
+        test_depth: e.depth,
         mesh_vertices: mesh.positions.len(),
         mesh_triangles: mesh.triangles.len(),
     };
@@ -572,6 +654,20 @@ pub fn finish(
             m.normal_consistency
         ))
     );
+    if let Some(d) = &e.depth {
+        println!(
+            "test-view geometry against the ground truth ({} px, {:.1} % covered): depth error \
+             x1e3 median {:.2}, mean {:.2}, mean signed {:+.2} (+: behind the surface); normal \
+             error median {:.1} deg, mean {:.1} deg",
+            d.pixels,
+            100.0 * d.coverage,
+            d.depth_median_abs * 1e3,
+            d.depth_mean_abs * 1e3,
+            d.depth_mean_signed * 1e3,
+            d.normal_median_deg,
+            d.normal_mean_deg
+        );
+    }
     Ok(())
 }
 
@@ -647,14 +743,17 @@ mod tests {
         };
         // A unit object: the radius decides.
         let c64 = cam(64);
-        let t = default_truncation(1.0, Vec3::ZERO, &[&c64, &c64, &c64]);
+        let t = default_truncation(1.0, Vec3::ZERO, &[&c64, &c64, &c64], true);
         assert!((t - 0.75).abs() < 1e-6, "{t}");
         // A small object in coarse images: six pixel footprints at its centre.
-        let t = default_truncation(0.01, Vec3::ZERO, &[&c64, &c64, &c64]);
+        let t = default_truncation(0.01, Vec3::ZERO, &[&c64, &c64, &c64], true);
         assert!((t - 6.0 * 4.0 / c64.fx).abs() < 1e-4, "{t}");
         // The median view decides.
         let c16 = cam(16);
-        let t = default_truncation(0.01, Vec3::ZERO, &[&c16, &c64, &c64]);
+        let t = default_truncation(0.01, Vec3::ZERO, &[&c16, &c64, &c64], true);
         assert!((t - 6.0 * 4.0 / c64.fx).abs() < 1e-4, "{t}");
+        // Without free-space votes, two footprints, whatever the radius.
+        let t = default_truncation(1.0, Vec3::ZERO, &[&c64, &c64, &c64], false);
+        assert!((t - 2.0 * 4.0 / c64.fx).abs() < 1e-4, "{t}");
     }
 }

@@ -200,7 +200,8 @@ fn resolve_config(
         cfg.init = match init.as_str() {
             "random" => Init::Random,
             "mask-carved" => Init::MaskCarved,
-            other => bail!("unknown --init '{other}' (random or mask-carved)"),
+            "hull-surface" => Init::HullSurface,
+            other => bail!("unknown --init '{other}' (random, mask-carved or hull-surface)"),
         };
     }
     cfg.validate()
@@ -363,6 +364,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
         truncation: args.truncation,
         fusion_views: fusion_views(args, &data_dir, &opts, &scene)?,
         silhouette_carving: !args.no_silhouette_carving,
+        fuse_depth: !args.silhouettes_only,
         bounds: outputs::hull_bounds(&scene.train)?,
     };
 

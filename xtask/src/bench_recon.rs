@@ -56,6 +56,8 @@ struct Metrics {
     interior_gaussians: u64,
     mesh: Option<MeshM>,
     mesh_whole_gt: Option<MeshM>,
+    #[serde(default)]
+    test_depth: Option<gtsr_eval::DepthMetrics>,
 }
 
 #[derive(serde::Deserialize)]
@@ -106,10 +108,8 @@ fn hull_row(
         chamfer: Some(m.chamfer),
         chamfer_whole_gt: Some(whole.chamfer),
         fscore: Some(m.fscore),
-        psnr: None,
-        ssim: None,
         seconds: Some(t0.elapsed().as_secs_f64()),
-        gaussians: None,
+        ..ReportRow::default()
     })
 }
 
@@ -156,18 +156,23 @@ fn run_gtsr_train(
     read_metrics(out)
 }
 
-/// The same trained model fused from its depth maps alone (`--no-silhouette-carving`, in a
-/// copy of the run): the mask-carved number says how good the mesh is, this one how much of
-/// it the rendered depth carries on its own.
-fn depth_only_row(
+/// The same trained model fused differently, in a copy of the run (`{method}-{suffix}`, with
+/// gtsr-train's `flag`): `--no-silhouette-carving` fuses the depth maps alone (how much of the
+/// mesh the rendered depth carries on its own), `--silhouettes-only` the masks alone on the
+/// same grid (what the depth adds to them).
+#[allow(clippy::too_many_arguments)]
+fn derived_row(
     exe: &Path,
     scene_dir: &Path,
     run: &Path,
     name: &str,
     method: &str,
     args: &BenchReconArgs,
+    suffix: &str,
+    flag: &str,
+    label: &str,
 ) -> Result<ReportRow> {
-    let out = run.with_file_name(format!("{method}-depth-only"));
+    let out = run.with_file_name(format!("{method}-{suffix}"));
     if out.exists() {
         std::fs::remove_dir_all(&out).with_context(|| format!("removing {}", out.display()))?;
     }
@@ -188,19 +193,17 @@ fn depth_only_row(
         &out,
         method,
         args,
-        &["--resume", "--no-silhouette-carving"],
-        &format!("{name} / {method} depth only"),
+        &["--resume", flag],
+        &format!("{name} / {method} {suffix}"),
     )?;
     Ok(ReportRow {
-        method: format!("{method}, depth only (no silhouettes in the fusion)"),
+        method: label.into(),
         scene: name.into(),
         chamfer: m.mesh.as_ref().map(|x| x.chamfer),
         chamfer_whole_gt: m.mesh_whole_gt.as_ref().map(|x| x.chamfer),
         fscore: m.mesh.as_ref().map(|x| x.fscore),
-        psnr: None,
-        ssim: None,
         seconds: Some(t0.elapsed().as_secs_f64()),
-        gaussians: None,
+        ..ReportRow::default()
     })
 }
 
@@ -251,6 +254,9 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                 chamfer: m.mesh.as_ref().map(|x| x.chamfer),
                 chamfer_whole_gt: m.mesh_whole_gt.as_ref().map(|x| x.chamfer),
                 fscore: m.mesh.as_ref().map(|x| x.fscore),
+                depth_err: m.test_depth.map(|d| d.depth_median_abs),
+                depth_bias: m.test_depth.map(|d| d.depth_mean_signed),
+                normal_err_deg: m.test_depth.map(|d| d.normal_mean_deg),
                 psnr: Some(m.test_psnr),
                 ssim: Some(m.test_ssim),
                 seconds: Some(m.train_seconds),
@@ -260,8 +266,33 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                 series.push((format!("{name} {method}"), tl));
             }
             if m.mesh.is_some() {
-                rows.push(depth_only_row(&exe, scene_dir, &out, &name, method, args)?);
+                rows.push(derived_row(
+                    &exe,
+                    scene_dir,
+                    &out,
+                    &name,
+                    method,
+                    args,
+                    "depth-only",
+                    "--no-silhouette-carving",
+                    &format!("{method}, depth only (no silhouettes in the fusion)"),
+                )?);
             }
+        }
+        if args.methods.iter().any(|m| m == "full") {
+            println!("== {name} / the full model's fusion without its depth");
+            let run = args.out.join(&name).join("full");
+            rows.push(derived_row(
+                &exe,
+                scene_dir,
+                &run,
+                &name,
+                "full",
+                args,
+                "silhouettes-only",
+                "--silhouettes-only",
+                "masks only, fused as gtsr-train does (the full run's grid, no depth)",
+            )?);
         }
         println!("== {name} / visual hull");
         rows.push(hull_row(

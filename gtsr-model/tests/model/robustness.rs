@@ -202,3 +202,39 @@ fn mask_carved_points_project_inside_the_masks() {
         pts.len()
     );
 }
+
+#[test]
+fn hull_surface_points_lie_on_the_boundary_of_the_masks_hull() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    let vs = views(&scene, &device);
+    let mut cfg = small_config(Preset::Full.components().unwrap(), 10);
+    cfg.init = Init::HullSurface;
+    let pts = initial_points(&cfg, &vs, &scene.train).unwrap();
+    assert_eq!(pts.len(), cfg.init_surface);
+    // The object is a unit sphere; its hull from a few views is a little larger, and mask-carved
+    // points fill it. Points on the hull's boundary have radius about 1, none near the centre.
+    let radii: Vec<f32> = pts
+        .iter()
+        .map(|p| p.iter().map(|v| v * v).sum::<f32>().sqrt())
+        .collect();
+    let inner = radii.iter().filter(|r| **r < 0.9).count();
+    let outer = radii.iter().filter(|r| **r > 1.25).count();
+    assert!(
+        inner == 0,
+        "{inner} of {} points inside radius 0.9",
+        pts.len()
+    );
+    assert!(outer < pts.len() / 20, "{outer} points beyond 1.25");
+    cfg.init = Init::MaskCarved;
+    let carved = initial_points(&cfg, &vs, &scene.train).unwrap();
+    let deep = carved
+        .iter()
+        .filter(|p| p.iter().map(|v| v * v).sum::<f32>().sqrt() < 0.9)
+        .count();
+    assert!(
+        deep > carved.len() / 2,
+        "mask-carved points fill the hull ({deep})"
+    );
+}
