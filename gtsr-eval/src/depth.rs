@@ -52,11 +52,13 @@ impl<'a> MeshRaycaster<'a> {
     pub fn render(&self, camera: &Camera) -> MeshDepth {
         let (w, h) = (camera.width as usize, camera.height as usize);
         let m = camera.world_to_camera;
-        let rows: Vec<(Vec<f32>, Vec<Vec3>)> = (0..h)
-            .into_par_iter()
-            .map(|j| {
-                let mut depth = vec![0.0; w];
-                let mut normal = vec![Vec3::ZERO; w];
+        let mut depth = vec![0.0; w * h];
+        let mut normal = vec![Vec3::ZERO; w * h];
+        depth
+            .par_chunks_mut(w.max(1))
+            .zip(normal.par_chunks_mut(w.max(1)))
+            .enumerate()
+            .for_each(|(j, (depth, normal))| {
                 for i in 0..w {
                     let (o, d) = camera.pixel_ray(i as u32, j as u32);
                     if let Some((t, n)) = self.target.first_hit(o, d) {
@@ -67,14 +69,7 @@ impl<'a> MeshRaycaster<'a> {
                         }
                     }
                 }
-                (depth, normal)
-            })
-            .collect();
-        let (mut depth, mut normal) = (Vec::with_capacity(w * h), Vec::with_capacity(w * h));
-        for (d, n) in rows {
-            depth.extend(d);
-            normal.extend(n);
-        }
+            });
         MeshDepth {
             width: w,
             height: h,
@@ -171,7 +166,7 @@ impl DepthComparison {
         if k == 0 {
             return None;
         }
-        let mean = |v: &mut dyn Iterator<Item = f64>| v.sum::<f64>() / k as f64;
+        let mean = |v: &[f32]| v.iter().map(|&e| e as f64).sum::<f64>() / k as f64;
         let median = |mut v: Vec<f32>| {
             v.sort_by(f32::total_cmp);
             if k % 2 == 1 {
@@ -182,10 +177,10 @@ impl DepthComparison {
         };
         let abs: Vec<f32> = self.depth_err.iter().map(|e| e.abs()).collect();
         Some(DepthMetrics {
-            depth_mean_abs: mean(&mut abs.iter().map(|&e| e as f64)),
+            depth_mean_abs: mean(&abs),
             depth_median_abs: median(abs),
-            depth_mean_signed: mean(&mut self.depth_err.iter().map(|&e| e as f64)),
-            normal_mean_deg: mean(&mut self.normal_deg.iter().map(|&e| e as f64)),
+            depth_mean_signed: mean(&self.depth_err),
+            normal_mean_deg: mean(&self.normal_deg),
             normal_median_deg: median(self.normal_deg.clone()),
             pixels: k,
             coverage: k as f64 / self.truth_pixels as f64,

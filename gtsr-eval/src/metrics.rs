@@ -21,7 +21,7 @@
 
 use glam::Vec3;
 use gtsr_data::ply::TriMesh;
-use parry3d::query::PointQueryWithLocation;
+use parry3d::query::{PointQueryWithLocation, RayCast};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -58,6 +58,14 @@ pub struct MeshMetrics {
 
 fn one() -> f64 {
     1.0
+}
+
+/// The parry3d ray from `o` along `d`.
+fn parry_ray(o: Vec3, d: Vec3) -> parry3d::query::Ray {
+    parry3d::query::Ray::new(
+        parry3d::math::Vector::new(o.x, o.y, o.z),
+        parry3d::math::Vector::new(d.x, d.y, d.z),
+    )
 }
 
 /// A mesh prepared for exact closest-point queries and ray casts.
@@ -120,27 +128,17 @@ impl<'a> Target<'a> {
         let d = to_eye / dist;
         let side = if n.dot(d) >= 0.0 { n } else { -n };
         let o = p + side * eps + d * eps;
-        let ray = parry3d::query::Ray::new(
-            parry3d::math::Vector::new(o.x, o.y, o.z),
-            parry3d::math::Vector::new(d.x, d.y, d.z),
-        );
-        use parry3d::query::RayCast;
         self.bvh
-            .cast_local_ray(&ray, dist - 2.0 * eps, false)
+            .cast_local_ray(&parry_ray(o, d), dist - 2.0 * eps, false)
             .is_none()
     }
 
     /// The first hit of the ray from `o` along the unit direction `d`: the distance along the
     /// ray and the unit normal of the triangle hit, turned to face the ray's origin.
     pub(crate) fn first_hit(&self, o: Vec3, d: Vec3) -> Option<(f32, Vec3)> {
-        use parry3d::query::RayCast;
-        let ray = parry3d::query::Ray::new(
-            parry3d::math::Vector::new(o.x, o.y, o.z),
-            parry3d::math::Vector::new(d.x, d.y, d.z),
-        );
         let hit = self
             .bvh
-            .cast_local_ray_and_get_normal(&ray, f32::MAX, false)?;
+            .cast_local_ray_and_get_normal(&parry_ray(o, d), f32::MAX, false)?;
         let n = Vec3::new(hit.normal.x, hit.normal.y, hit.normal.z).normalize_or_zero();
         let n = if n.dot(d) > 0.0 { -n } else { n };
         (hit.time_of_impact.is_finite() && n != Vec3::ZERO).then_some((hit.time_of_impact, n))

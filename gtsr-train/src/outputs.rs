@@ -253,6 +253,12 @@ pub fn extract_mesh(
         tsdf = tsdf.with_silhouette_carving();
     }
     for (k, data) in host_views.iter().enumerate() {
+        if !settings.fuse_depth {
+            // Silhouettes alone (every view has a mask, checked above): nothing to render.
+            let n = data.camera.width as usize * data.camera.height as usize;
+            tsdf.integrate(&data.camera, &vec![0.0; n], data.mask.as_deref())?;
+            continue;
+        }
         let (g, rays) = if settings.fusion_views.is_empty() {
             let v = &trainer.views[k];
             (
@@ -298,9 +304,6 @@ pub fn extract_mesh(
         let plane = host_vec(g.plane);
         let (w, h) = (data.camera.width as usize, data.camera.height as usize);
         drop_depth_edges(&mut depth, &normal, &plane, &rays, w, h, data.camera.fx);
-        if !settings.fuse_depth {
-            depth.fill(0.0);
-        }
         tsdf.integrate(&data.camera, &depth, free_space_votes.then_some(&mask[..]))?;
     }
     Ok(largest_component(&tsdf.extract_mesh()))

@@ -359,6 +359,12 @@ pub fn run(args: &Args) -> Result<Outcome> {
         }
         None => None,
     };
+    if args.silhouettes_only && scene.train.iter().any(|v| v.mask.is_none()) {
+        bail!(
+            "--silhouettes-only needs a mask on every training view; {} has none on some",
+            data_dir.display()
+        );
+    }
     let mesh_settings = MeshSettings {
         voxel: args.voxel,
         truncation: args.truncation,

@@ -156,11 +156,17 @@ fn run_gtsr_train(
     read_metrics(out)
 }
 
+/// Another fusion of a trained run: the copy's folder suffix, gtsr-train's flag, the row label.
+struct Fusion<'a> {
+    suffix: &'a str,
+    flag: &'a str,
+    label: String,
+}
+
 /// The same trained model fused differently, in a copy of the run (`{method}-{suffix}`, with
 /// gtsr-train's `flag`): `--no-silhouette-carving` fuses the depth maps alone (how much of the
 /// mesh the rendered depth carries on its own), `--silhouettes-only` the masks alone on the
 /// same grid (what the depth adds to them).
-#[allow(clippy::too_many_arguments)]
 fn derived_row(
     exe: &Path,
     scene_dir: &Path,
@@ -168,9 +174,11 @@ fn derived_row(
     name: &str,
     method: &str,
     args: &BenchReconArgs,
-    suffix: &str,
-    flag: &str,
-    label: &str,
+    Fusion {
+        suffix,
+        flag,
+        label,
+    }: Fusion,
 ) -> Result<ReportRow> {
     let out = run.with_file_name(format!("{method}-{suffix}"));
     if out.exists() {
@@ -197,7 +205,7 @@ fn derived_row(
         &format!("{name} / {method} {suffix}"),
     )?;
     Ok(ReportRow {
-        method: label.into(),
+        method: label,
         scene: name.into(),
         chamfer: m.mesh.as_ref().map(|x| x.chamfer),
         chamfer_whole_gt: m.mesh_whole_gt.as_ref().map(|x| x.chamfer),
@@ -273,9 +281,11 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                     &name,
                     method,
                     args,
-                    "depth-only",
-                    "--no-silhouette-carving",
-                    &format!("{method}, depth only (no silhouettes in the fusion)"),
+                    Fusion {
+                        suffix: "depth-only",
+                        flag: "--no-silhouette-carving",
+                        label: format!("{method}, depth only (no silhouettes in the fusion)"),
+                    },
                 )?);
             }
         }
@@ -289,9 +299,12 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                 &name,
                 "full",
                 args,
-                "silhouettes-only",
-                "--silhouettes-only",
-                "masks only, fused as gtsr-train does (the full run's grid, no depth)",
+                Fusion {
+                    suffix: "silhouettes-only",
+                    flag: "--silhouettes-only",
+                    label: "masks only, fused as gtsr-train does (the full run's grid, no depth)"
+                        .into(),
+                },
             )?);
         }
         println!("== {name} / visual hull");

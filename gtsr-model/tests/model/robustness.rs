@@ -181,16 +181,24 @@ fn auto_leaves_out_what_the_scene_does_not_need_and_says_why() {
     );
 }
 
-#[test]
-fn mask_carved_points_project_inside_the_masks() {
+/// The initial points of `init` on the tiny sphere scene, and how many were asked for.
+fn tiny_initial_points(init: Init) -> (Vec<[f32; 3]>, usize) {
     let dir = tempfile::tempdir().unwrap();
     let scene = tiny_scene(dir.path());
     let device = device();
     let vs = views(&scene, &device);
     let mut cfg = small_config(Preset::Full.components().unwrap(), 10);
-    cfg.init = Init::MaskCarved;
-    let pts = initial_points(&cfg, &vs, &scene.train).unwrap();
-    assert_eq!(pts.len(), cfg.init_surface);
+    cfg.init = init;
+    (
+        initial_points(&cfg, &vs, &scene.train).unwrap(),
+        cfg.init_surface,
+    )
+}
+
+#[test]
+fn mask_carved_points_project_inside_the_masks() {
+    let (pts, asked) = tiny_initial_points(Init::MaskCarved);
+    assert_eq!(pts.len(), asked);
     // The sphere has radius 1: carved points lie close to it, random ones fill the ball.
     let outside = pts
         .iter()
@@ -205,14 +213,8 @@ fn mask_carved_points_project_inside_the_masks() {
 
 #[test]
 fn hull_surface_points_lie_on_the_boundary_of_the_masks_hull() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = tiny_scene(dir.path());
-    let device = device();
-    let vs = views(&scene, &device);
-    let mut cfg = small_config(Preset::Full.components().unwrap(), 10);
-    cfg.init = Init::HullSurface;
-    let pts = initial_points(&cfg, &vs, &scene.train).unwrap();
-    assert_eq!(pts.len(), cfg.init_surface);
+    let (pts, asked) = tiny_initial_points(Init::HullSurface);
+    assert_eq!(pts.len(), asked);
     // The object is a unit sphere; its hull from a few views is a little larger, and mask-carved
     // points fill it. Points on the hull's boundary have radius about 1, none near the centre.
     let radii: Vec<f32> = pts
@@ -227,8 +229,7 @@ fn hull_surface_points_lie_on_the_boundary_of_the_masks_hull() {
         pts.len()
     );
     assert!(outer < pts.len() / 20, "{outer} points beyond 1.25");
-    cfg.init = Init::MaskCarved;
-    let carved = initial_points(&cfg, &vs, &scene.train).unwrap();
+    let (carved, _) = tiny_initial_points(Init::MaskCarved);
     let deep = carved
         .iter()
         .filter(|p| p.iter().map(|v| v * v).sum::<f32>().sqrt() < 0.9)
