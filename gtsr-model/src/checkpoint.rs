@@ -248,6 +248,7 @@ pub fn load(path: &Path, views: Vec<ViewTensors>, device: &Device) -> Result<Tra
                 .expect("light tensor")
         }),
         sh_degree: meta.sh_degree,
+        blur_px2: meta.config.blur_px2,
     };
     trainer.step = meta.step;
     trainer.counters = meta.counters;

@@ -37,6 +37,8 @@ pub struct Model {
     pub log_light: Option<Tensor<2>>,
     /// SH degree in use now (grows to `components.sh_degree`).
     pub sh_degree: u32,
+    /// Screen-space blur of every render, pixels^2 ([`SplatConfig::blur_px2`]).
+    pub blur_px2: f64,
 }
 
 /// What a render should produce.
@@ -112,12 +114,14 @@ fn splat(
     opacities: Tensor<1>,
     features: Tensor<2>,
     camera: &Camera,
+    blur_px2: f64,
 ) -> Result<gtsr_render_kernels::RenderOutput, ModelError> {
     let c = features.dims()[1];
     let cfg = SplatConfig {
         camera: camera.clone(),
         background: vec![0.0; c],
         cutoff: AlphaCutoff::Hard,
+        blur_px2,
     };
     Ok(render(
         SplatInputs {
@@ -261,7 +265,13 @@ impl Model {
             if opts.geometry {
                 feats.push(self.geometry_features(&surf, camera, material));
             }
-            let out = splat(&surf, surf.opacities.clone(), Tensor::cat(feats, 1), camera)?;
+            let out = splat(
+                &surf,
+                surf.opacities.clone(),
+                Tensor::cat(feats, 1),
+                camera,
+                self.blur_px2,
+            )?;
             passes += 1;
             let ch = out.image.dims()[2];
             let c_sh = out.image.clone().slice([0..h, 0..w, 0..3]);
@@ -294,7 +304,13 @@ impl Model {
                 }
                 None => (surf_w, None),
             };
-            let out = splat(&all, all.opacities.clone(), all.colours.clone(), camera)?;
+            let out = splat(
+                &all,
+                all.opacities.clone(),
+                all.colours.clone(),
+                camera,
+                self.blur_px2,
+            )?;
             passes += 1;
             let radii = host_column(out.aux, 0);
             let (sr, ir) = (radii[..ns].to_vec(), radii[ns..].to_vec());
@@ -303,7 +319,7 @@ impl Model {
 
         if opts.geometry && geometry_out.is_none() {
             let feats = self.geometry_features(&surf, camera, material);
-            let out = splat(&surf, surf.opacities.clone(), feats, camera)?;
+            let out = splat(&surf, surf.opacities.clone(), feats, camera, self.blur_px2)?;
             passes += 1;
             geometry_out = Some((out.image, out.alpha));
         }
@@ -332,7 +348,13 @@ impl Model {
 
         let scatter = match (&int_prepared, pbr) {
             (Some(ip), true) => {
-                let out = splat(ip, ip.opacities.clone(), ip.colours.clone(), camera)?;
+                let out = splat(
+                    ip,
+                    ip.opacities.clone(),
+                    ip.colours.clone(),
+                    camera,
+                    self.blur_px2,
+                )?;
                 passes += 1;
                 Some(out.image)
             }
@@ -383,7 +405,7 @@ impl Model {
     ) -> Result<GeometryMaps, ModelError> {
         let surf = self.prepare(&self.surface, camera, true, false);
         let feats = self.geometry_features(&surf, camera, false);
-        let out = splat(&surf, surf.opacities.clone(), feats, camera)?;
+        let out = splat(&surf, surf.opacities.clone(), feats, camera, self.blur_px2)?;
         let [h, w, _] = rays.dims();
         let normal = out.image.clone().slice([0..h, 0..w, 0..3]);
         let plane = out.image.slice([0..h, 0..w, 3..4]).reshape([h, w]);

@@ -294,6 +294,7 @@ impl Trainer {
                 .pbr
                 .then(|| scalar_param(mean_dist2.max(1e-6).ln(), device)),
             sh_degree: 0,
+            blur_px2: config.blur_px2,
         };
         let cams: Vec<_> = views.iter().map(|v| v.camera.clone()).collect();
         let neighbours = neighbours(&cams, config.neighbour_max_angle_deg);

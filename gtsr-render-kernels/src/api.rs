@@ -90,6 +90,9 @@ pub enum RenderError {
     /// The background contains NaN or infinity.
     #[error("background value {0} is not finite")]
     NonFiniteBackground(f64),
+    /// The screen-space blur is negative, NaN or infinite.
+    #[error("blur_px2 must be finite and non-negative, got {0}")]
+    Blur(f64),
     /// Inputs on different devices, or of different float types.
     #[error("all inputs must share one device and one float dtype ({0})")]
     Mixed(String),
@@ -144,7 +147,7 @@ fn check_shape(
 
 /// Splats `inputs` into the camera of `config`.
 ///
-/// Projection (EWA, 0.3 px blur, Jacobian clamp, near/far and non-finite culling), depth sort
+/// Projection (EWA, `config.blur_px2` screen-space blur, Jacobian clamp, near/far and non-finite culling), depth sort
 /// and 16x16 tile binning, and front-to-back blending follow the 3DGS conventions; see the
 /// crate docs. On an autodiff device the image and alpha are differentiable with respect to
 /// every input tensor.
@@ -163,7 +166,7 @@ fn check_shape(
 ///     features: Tensor::from_floats([[1.0, 0.5, 0.0]], &device),
 ///     xy_offsets: None,
 /// };
-/// let config = SplatConfig { camera, background: vec![0.0; 3], cutoff: Default::default() };
+/// let config = SplatConfig::new(camera, 3);
 /// let out = render(inputs, &config)?;
 /// assert_eq!(out.image.dims(), [64, 64, 3]);
 /// # Ok::<(), Box<dyn std::error::Error>>(())
@@ -187,6 +190,9 @@ pub fn render(inputs: SplatInputs, config: &SplatConfig) -> Result<RenderOutput,
     }
     if let Some(b) = config.background.iter().find(|b| !b.is_finite()) {
         return Err(RenderError::NonFiniteBackground(*b));
+    }
+    if !config.blur_px2.is_finite() || config.blur_px2 < 0.0 {
+        return Err(RenderError::Blur(config.blur_px2));
     }
     let device = inputs.means.device();
     let dtype = inputs.means.dtype();

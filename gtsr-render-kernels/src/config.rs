@@ -12,8 +12,14 @@ pub const ALPHA_MIN: f64 = 1.0 / 255.0;
 pub const ALPHA_MAX: f64 = 0.99;
 /// A pixel stops accumulating before its transmittance would fall below this (3DGS: 1e-4).
 pub const TRANSMITTANCE_MIN: f64 = 1e-4;
-/// Screen-space low-pass filter added to the diagonal of every 2D covariance, in pixels^2.
+/// 3DGS's screen-space low-pass filter: added to the diagonal of every 2D covariance, in
+/// pixels^2. The default of [`SplatConfig::blur_px2`].
 pub const BLUR_PX2: f64 = 0.3;
+/// The variance of a unit box, 1/12 pixel^2: the blur of integrating over a pixel's area
+/// (what an area-averaged, downscaled image holds). 3DGS's 0.3 blurs more than that: a
+/// silhouette of dilated splats then spills past the mask, and a fit to the mask pulls the
+/// splats inward (GTSR-rs trains with this value; see `gtsr-model`'s `TrainConfig::blur_px2`).
+pub const PIXEL_BOX_BLUR_PX2: f64 = 1.0 / 12.0;
 /// The EWA Jacobian is evaluated at a mean clamped to this fraction of the image outside the
 /// frame (x/z and y/z limited to `[-0.15 W, 1.15 W]` in pixels), which keeps splats far outside
 /// the frustum from blowing up.
@@ -41,6 +47,23 @@ pub struct SplatConfig {
     pub background: Vec<f64>,
     /// Alpha cut-off behaviour.
     pub cutoff: AlphaCutoff,
+    /// Screen-space blur added to the diagonal of every 2D covariance, pixels^2 (finite,
+    /// `>= 0`): [`BLUR_PX2`] (3DGS) or [`PIXEL_BOX_BLUR_PX2`]. It keeps edge-on flat splats
+    /// at least this wide on screen; at 0 they are culled as degenerate.
+    pub blur_px2: f64,
+}
+
+impl SplatConfig {
+    /// A configuration with a black background of `channels` channels, the hard 3DGS alpha
+    /// cut-off and the 3DGS blur ([`BLUR_PX2`]).
+    pub fn new(camera: Camera, channels: usize) -> Self {
+        SplatConfig {
+            camera,
+            background: vec![0.0; channels],
+            cutoff: AlphaCutoff::Hard,
+            blur_px2: BLUR_PX2,
+        }
+    }
 }
 
 /// Per-Gaussian status codes written to column 3 of the aux output.

@@ -15,7 +15,8 @@
 //!
 //! # Conventions (3DGS)
 //! - Camera: OpenCV pinhole, see [`camera`]. Pixel centres at `(i + 0.5, j + 0.5)`.
-//! - Projection: `Sigma' = J W Sigma W^T J^T + 0.3 I`, the Jacobian evaluated at the mean with
+//! - Projection: `Sigma' = J W Sigma W^T J^T + b I` with the blur `b` of
+//!   [`SplatConfig::blur_px2`] (3DGS's 0.3 by default), the Jacobian evaluated at the mean with
 //!   `x/z`, `y/z` clamped to 15% outside the image; means outside `[near, far]`, non-finite
 //!   parameters and quaternions of squared norm below `1e-8` are culled (status in `aux`).
 //! - Blending: `alpha = min(0.99, o * exp(-d^T Sigma'^-1 d / 2))`, skipped below `1/255`;
@@ -42,5 +43,5 @@ pub mod scalar;
 
 pub use api::{RenderError, RenderOutput, SplatInputs, device_supported, render};
 pub use camera::{Camera, CameraError};
-pub use config::{AlphaCutoff, SplatConfig, TILE_PIXELS, TILE_SIZE};
+pub use config::{AlphaCutoff, BLUR_PX2, PIXEL_BOX_BLUR_PX2, SplatConfig, TILE_PIXELS, TILE_SIZE};
 pub mod scenes;

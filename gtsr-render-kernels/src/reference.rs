@@ -5,7 +5,7 @@
 use rayon::prelude::*;
 
 use crate::config::{
-    ALPHA_MAX, ALPHA_MIN, AlphaCutoff, BLUR_PX2, FRUSTUM_MARGIN, QUAT_MIN_NORM2, SplatConfig,
+    ALPHA_MAX, ALPHA_MIN, AlphaCutoff, FRUSTUM_MARGIN, QUAT_MIN_NORM2, SplatConfig,
     TRANSMITTANCE_MIN,
 };
 use crate::cpu::HostGaussians;
@@ -105,7 +105,7 @@ fn project(g: &HostGaussians<'_, f64>, i: usize, cfg: &SplatConfig) -> Option<Pr
                     acc += j[a][k] * sigma_c[k][l] * j[b][l];
                 }
             }
-            acc + if a == b { BLUR_PX2 } else { 0.0 }
+            acc + if a == b { cfg.blur_px2 } else { 0.0 }
         })
     });
     let det = cov[0][0] * cov[1][1] - cov[0][1] * cov[1][0];

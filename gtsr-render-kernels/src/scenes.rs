@@ -63,6 +63,7 @@ impl HostScene {
             camera: self.camera.clone(),
             background: self.background.clone(),
             cutoff,
+            blur_px2: crate::BLUR_PX2,
         }
     }
 

@@ -205,6 +205,30 @@ fn gradients_match_cpu_on_random_scenes() {
     }
 }
 
+/// The screen-space blur is a setting (the camera buffer carries it): the pixel box's 1/12 and
+/// 0 render as on the CPU, and differently from 3DGS's 0.3.
+#[test]
+fn blur_setting_matches_cpu() {
+    let scene = random_scene(950, &spec(300, 3, (64, 48)));
+    let mut renders = Vec::new();
+    for blur in [
+        gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
+        0.0,
+        gtsr_render_kernels::BLUR_PX2,
+    ] {
+        let mut cfg = scene.config(AlphaCutoff::Smooth);
+        cfg.blur_px2 = blur;
+        let cpu = render(scene.inputs(&Device::ndarray(), DType::F64), &cfg).unwrap();
+        let gpu = render(scene.inputs(&wgpu(), DType::F32), &cfg).unwrap();
+        let (want, got) = (host(cpu.image), host(gpu.image));
+        let e = rel_err(&got, &want);
+        assert!(e <= 1e-4, "blur {blur}: forward relative error {e:.3e}");
+        renders.push(want);
+    }
+    let d = rel_err(&renders[0], &renders[2]);
+    assert!(d > 1e-3, "blur 1/12 and 0.3 render alike ({d:e})");
+}
+
 #[test]
 fn stiff_cases_match_cpu() {
     for case in stiff_cases() {

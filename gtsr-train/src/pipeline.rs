@@ -169,6 +169,7 @@ fn resolve_config(
         cfg.densify.max_surface = keep.densify.max_surface;
         cfg.densify.max_interior = keep.densify.max_interior;
         cfg.seed = keep.seed;
+        cfg.blur_px2 = keep.blur_px2;
     }
     let c = &mut cfg.components;
     for (flag, name, field) in [

@@ -139,6 +139,7 @@ fn c_sh_matches_direct_evaluation() {
             &device,
         )),
         sh_degree: 3,
+        blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
     };
     let cam = camera();
     let rays = pixel_rays(&cam, &device);
@@ -183,6 +184,7 @@ fn c_sh_matches_direct_evaluation() {
         camera: cam.clone(),
         background: vec![0.0; 3],
         cutoff: AlphaCutoff::Hard,
+        blur_px2: model.blur_px2,
     };
     let direct = render_reference(&g, &cfg);
     let got: Vec<f32> = r.c_sh.into_data().convert::<f32>().into_vec().unwrap();
@@ -240,6 +242,7 @@ fn unbiased_depth_is_the_ray_plane_intersection() {
         interior: None,
         log_light: None,
         sh_degree: 0,
+        blur_px2: gtsr_render_kernels::BLUR_PX2,
     };
     let g = model.render_depth(&cam, &rays).unwrap();
     let depth: Vec<f32> = g.depth.into_data().convert::<f32>().into_vec().unwrap();

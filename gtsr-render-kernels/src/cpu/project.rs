@@ -1,9 +1,7 @@
 //! Projection of 3D Gaussians to screen-space conics (EWA splatting) and its vector-Jacobian
 //! product.
 
-use crate::config::{
-    ALPHA_MIN, BLUR_PX2, FRUSTUM_MARGIN, QUAT_MIN_NORM2, SplatConfig, TILE_SIZE, status,
-};
+use crate::config::{ALPHA_MIN, FRUSTUM_MARGIN, QUAT_MIN_NORM2, SplatConfig, TILE_SIZE, status};
 use crate::scalar::Real;
 
 type M3<F> = [[F; 3]; 3];
@@ -24,6 +22,8 @@ pub(crate) struct CamF<F> {
     /// x/z limits for the Jacobian clamp.
     pub lim_x: [F; 2],
     pub lim_y: [F; 2],
+    /// Screen-space blur (pixels^2).
+    pub blur: F,
 }
 
 impl<F: Real> CamF<F> {
@@ -51,6 +51,7 @@ impl<F: Real> CamF<F> {
                 F::c((-m * h - c.cy) / c.fy),
                 F::c(((1.0 + m) * h - c.cy) / c.fy),
             ],
+            blur: F::c(cfg.blur_px2),
         }
     }
 }
@@ -255,7 +256,7 @@ fn project_core<F: Real>(g: &GaussIn<F>, cam: &CamF<F>) -> Result<Fwd<F>, f32> {
         }
     }
     let dot3 = |u: [F; 3], v: [F; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
-    let blur = F::c(BLUR_PX2);
+    let blur = cam.blur;
     let cov = [
         dot3(js[0], j[0]) + blur,
         dot3(js[0], j[1]),

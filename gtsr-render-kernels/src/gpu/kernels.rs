@@ -20,8 +20,8 @@ use crate::config::TILE_SIZE;
 /// x1, y1 (the rectangle as exact small integers).
 pub const PROJ: u32 = 12;
 /// Floats in the camera buffer: rotation (row-major 3x3), translation, fx, fy, cx, cy, near,
-/// far, x/z limits, y/z limits.
-pub const CAM: u32 = 22;
+/// far, x/z limits, y/z limits, screen-space blur (pixels^2).
+pub const CAM: u32 = 23;
 /// Threads per tile (one per pixel).
 pub const TILE_THREADS: u32 = TILE_SIZE * TILE_SIZE;
 /// Splats loaded into shared memory per round in the forward pass.
@@ -36,7 +36,6 @@ const RED: u32 = 8;
 const ALPHA_MIN: f32 = 1.0 / 255.0;
 const ALPHA_MAX: f32 = 0.99;
 const T_MIN: f32 = 1e-4;
-const BLUR: f32 = 0.3;
 const QUAT_MIN_NORM2: f32 = 1e-8;
 
 // Layout of the intermediate values of the projection (`core`).
@@ -188,9 +187,9 @@ fn project_core(
     let js02 = j00 * out[SC + 2] + j02 * out[SC + 8];
     let js11 = j11 * out[SC + 4] + j12 * out[SC + 7];
     let js12 = j11 * out[SC + 5] + j12 * out[SC + 8];
-    let ca = js00 * j00 + js02 * j02 + BLUR;
+    let ca = js00 * j00 + js02 * j02 + cam[22];
     let cb = js01 * j11 + js02 * j12;
-    let cc = js11 * j11 + js12 * j12 + BLUR;
+    let cc = js11 * j11 + js12 * j12 + cam[22];
     out[COV] = ca;
     out[COV + 1] = cb;
     out[COV + 2] = cc;

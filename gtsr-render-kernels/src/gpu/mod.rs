@@ -192,6 +192,7 @@ fn camera_buffer(client: &Client, config: &SplatConfig) -> Handle {
         ]
         .map(|x| x as f32),
     );
+    v.push(config.blur_px2 as f32);
     debug_assert_eq!(v.len(), CAM as usize);
     client.create_from_slice(&f32_bytes(&v))
 }

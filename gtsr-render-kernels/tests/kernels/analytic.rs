@@ -1,6 +1,6 @@
 use burn::tensor::{DType, Device};
 use gtsr_render_kernels::scenes::{HostScene, axis_camera};
-use gtsr_render_kernels::{AlphaCutoff, render};
+use gtsr_render_kernels::{AlphaCutoff, BLUR_PX2, PIXEL_BOX_BLUR_PX2, render};
 
 use crate::common::host;
 
@@ -19,12 +19,15 @@ fn isotropic_gaussian_alpha_profile() {
         background: vec![0.0],
         camera: camera.clone(),
     };
-    for dtype in [DType::F64, DType::F32] {
-        let out = render(
-            scene.inputs(&Device::ndarray(), dtype),
-            &scene.config(AlphaCutoff::Hard),
-        )
-        .unwrap();
+    for (dtype, blur) in [
+        (DType::F64, BLUR_PX2),
+        (DType::F32, BLUR_PX2),
+        (DType::F64, PIXEL_BOX_BLUR_PX2),
+        (DType::F32, 0.0),
+    ] {
+        let mut cfg = scene.config(AlphaCutoff::Hard);
+        cfg.blur_px2 = blur;
+        let out = render(scene.inputs(&Device::ndarray(), dtype), &cfg).unwrap();
         let alpha = host(out.alpha);
         // The mean projects onto the centre of pixel (w/2, h/2).
         let (ci, cj) = ((w / 2) as usize, (h / 2) as usize);
@@ -33,8 +36,8 @@ fn isotropic_gaussian_alpha_profile() {
             (centre - o).abs() < 1e-6,
             "{dtype:?}: alpha at centre {centre} != {o}"
         );
-        // sigma^2 in pixels: (f s / z)^2 plus the 0.3 px^2 low-pass filter.
-        let sigma2 = (f * s / z).powi(2) + 0.3;
+        // sigma^2 in pixels: (f s / z)^2 plus the low-pass filter.
+        let sigma2 = (f * s / z).powi(2) + blur;
         let mut checked = 0;
         for j in 0..h as usize {
             for i in 0..w as usize {
@@ -44,7 +47,7 @@ fn isotropic_gaussian_alpha_profile() {
                 if want >= 1.0 / 255.0 {
                     assert!(
                         (got - want).abs() <= 1e-4,
-                        "{dtype:?}: alpha at r^2 = {r2}: {got} vs {want}"
+                        "{dtype:?}, blur {blur}: alpha at r^2 = {r2}: {got} vs {want}"
                     );
                     checked += 1;
                 } else {
@@ -54,4 +57,40 @@ fn isotropic_gaussian_alpha_profile() {
         }
         assert!(checked > 50, "profile covers only {checked} pixels");
     }
+}
+
+/// An edge-on splat is as wide on screen as the blur: its alpha across the edge falls off with
+/// variance `blur_px2`, so 3DGS's 0.3 px^2 spreads it over more pixels than the pixel box's 1/12.
+#[test]
+fn edge_on_splat_is_as_wide_as_the_blur() {
+    let (w, h, f, z, o) = (33u32, 33u32, 80.0, 4.0, 0.9);
+    // A splat thin along y (long along x), seen edge-on, its mean half a pixel below the centre
+    // of pixel row h/2.
+    let scene = HostScene {
+        means: vec![0.0, 0.5 * z / f, z],
+        quats: vec![1.0, 0.0, 0.0, 0.0],
+        scales: vec![0.2, 1e-7, 1e-7],
+        opacities: vec![o],
+        features: vec![1.0],
+        xy_offsets: vec![0.0, 0.0],
+        channels: 1,
+        background: vec![0.0],
+        camera: axis_camera(w, h, f),
+    };
+    let (ci, cj) = ((w / 2) as usize, (h / 2) as usize);
+    let mut half_px_off = Vec::new();
+    for blur in [BLUR_PX2, PIXEL_BOX_BLUR_PX2] {
+        let mut cfg = scene.config(AlphaCutoff::Hard);
+        cfg.blur_px2 = blur;
+        let out = render(scene.inputs(&Device::ndarray(), DType::F64), &cfg).unwrap();
+        let alpha = host(out.alpha);
+        let got = alpha[cj * w as usize + ci];
+        let want = o * (-0.125 / blur).exp();
+        assert!(
+            (got - want).abs() <= 1e-6 * o,
+            "blur {blur}: alpha half a pixel across the edge {got} vs {want}"
+        );
+        half_px_off.push(got);
+    }
+    assert!(half_px_off[0] > 2.0 * half_px_off[1], "{half_px_off:?}");
 }

@@ -33,6 +33,14 @@ fn bad_shapes_and_backgrounds_are_rejected_with_clear_errors() {
     let err = render(scene.inputs(&device, DType::F32), &nan_bg).unwrap_err();
     assert!(matches!(err, RenderError::NonFiniteBackground(_)), "{err}");
 
+    for blur in [-0.1, f64::NAN, f64::INFINITY] {
+        let mut bad_blur = cfg.clone();
+        bad_blur.blur_px2 = blur;
+        let err = render(scene.inputs(&device, DType::F32), &bad_blur).unwrap_err();
+        assert!(matches!(err, RenderError::Blur(_)), "{err}");
+        assert!(err.to_string().contains("blur_px2"), "{err}");
+    }
+
     let mut inp = scene.inputs(&device, DType::F32);
     inp.features = Tensor::zeros([10, 3], (&device, DType::F64));
     let err = render(inp, &cfg).unwrap_err();
