@@ -71,6 +71,9 @@ pub struct GeometryMaps {
     pub base: Option<Tensor<3>>,
     /// `[H, W]` roughness (premultiplied), with PBR.
     pub roughness: Option<Tensor<2>>,
+    /// Tile-splat pairs of the pass that rendered these maps (the blend's work: each pair is
+    /// one 16x16 tile that one splat touches).
+    pub tile_splats: u64,
 }
 
 /// Everything one render produced.
@@ -88,6 +91,9 @@ pub struct Renders {
     pub c_pbr: Option<Tensor<3>>,
     /// Raster passes run.
     pub passes: usize,
+    /// Tile-splat pairs summed over the passes (see [`GeometryMaps::tile_splats`]): with the
+    /// pass count, what the render cost.
+    pub tile_splats: u64,
     /// `[Ns]` screen radii of the surface set in the C_SH pass (0: not visible).
     pub surface_radii: Vec<f32>,
     /// `[Ni]` screen radii of the interior set.
@@ -152,9 +158,21 @@ fn cat_prepared(a: &Prepared, b: &Prepared) -> Prepared {
     }
 }
 
-fn host_column(t: Tensor<2>, col: usize) -> Vec<f32> {
-    let n = t.dims()[0];
-    host_vec(t.slice([0..n, col..col + 1]))
+/// Screen radii (column 0 of a render's `aux`) and tile-splat pairs (the sum of column 2), in
+/// one read.
+fn radii_and_tiles(aux: Tensor<2>) -> (Vec<f32>, u64) {
+    let v = host_vec(aux);
+    let radii = v.chunks_exact(4).map(|r| r[0]).collect();
+    (radii, tile_sum(&v))
+}
+
+/// Tile-splat pairs of a render's `aux` (the sum of its column 2).
+fn tile_pairs(aux: Tensor<2>) -> u64 {
+    tile_sum(&host_vec(aux))
+}
+
+fn tile_sum(aux: &[f32]) -> u64 {
+    aux.chunks_exact(4).map(|r| r[2].max(0.0) as u64).sum()
 }
 
 impl Model {
@@ -256,7 +274,8 @@ impl Model {
         let ns = self.surface.len();
         let [h, w, _] = rays.dims();
         let mut passes = 0;
-        let mut geometry_out: Option<(Tensor<3>, Tensor<2>)> = None;
+        let mut tile_splats = 0;
+        let mut geometry_out: Option<(Tensor<3>, Tensor<2>, u64)> = None;
 
         // C_SH (merged with the geometry pass when they blend the same splats alike).
         let merged = interior.is_none() && !fresnel;
@@ -273,12 +292,18 @@ impl Model {
                 self.blur_px2,
             )?;
             passes += 1;
+            let (radii, tiles) = radii_and_tiles(out.aux);
+            tile_splats += tiles;
             let ch = out.image.dims()[2];
             let c_sh = out.image.clone().slice([0..h, 0..w, 0..3]);
             if opts.geometry {
-                geometry_out = Some((out.image.slice([0..h, 0..w, 3..ch]), out.alpha.clone()));
+                geometry_out = Some((
+                    out.image.slice([0..h, 0..w, 3..ch]),
+                    out.alpha.clone(),
+                    tiles,
+                ));
             }
-            (c_sh, out.alpha, host_column(out.aux, 0), Vec::new(), None)
+            (c_sh, out.alpha, radii, Vec::new(), None)
         } else {
             let surf_op = if fresnel {
                 let normals = surf.normals_w.clone().expect("normals prepared");
@@ -312,7 +337,8 @@ impl Model {
                 self.blur_px2,
             )?;
             passes += 1;
-            let radii = host_column(out.aux, 0);
+            let (radii, tiles) = radii_and_tiles(out.aux);
+            tile_splats += tiles;
             let (sr, ir) = (radii[..ns].to_vec(), radii[ns..].to_vec());
             (out.image, out.alpha, sr, ir, int_p)
         };
@@ -321,9 +347,11 @@ impl Model {
             let feats = self.geometry_features(&surf, camera, material);
             let out = splat(&surf, surf.opacities.clone(), feats, camera, self.blur_px2)?;
             passes += 1;
-            geometry_out = Some((out.image, out.alpha));
+            let tiles = tile_pairs(out.aux);
+            tile_splats += tiles;
+            geometry_out = Some((out.image, out.alpha, tiles));
         }
-        let geometry = geometry_out.map(|(maps, coverage)| {
+        let geometry = geometry_out.map(|(maps, coverage, tiles)| {
             let ch = maps.dims()[2];
             let normal = maps.clone().slice([0..h, 0..w, 0..3]);
             let plane = maps.clone().slice([0..h, 0..w, 3..4]).reshape([h, w]);
@@ -343,6 +371,7 @@ impl Model {
                 depth,
                 base,
                 roughness,
+                tile_splats: tiles,
             }
         });
 
@@ -356,6 +385,7 @@ impl Model {
                     self.blur_px2,
                 )?;
                 passes += 1;
+                tile_splats += tile_pairs(out.aux);
                 Some(out.image)
             }
             _ => None,
@@ -389,6 +419,7 @@ impl Model {
             scatter,
             c_pbr,
             passes,
+            tile_splats,
             surface_radii,
             interior_radii,
             surface_offsets: surf.offsets,
@@ -417,6 +448,7 @@ impl Model {
             depth,
             base: None,
             roughness: None,
+            tile_splats: tile_pairs(out.aux),
         })
     }
 }

@@ -34,6 +34,10 @@ pub struct Counters {
     pub passes: usize,
     /// Densifications run.
     pub densifications: usize,
+    /// Tile-splat pairs blended so far, over every pass (what the passes cost; 0 in checkpoints
+    /// written before it was counted).
+    #[serde(default)]
+    pub tile_splats: u64,
 }
 
 /// What one step did.
@@ -51,6 +55,8 @@ pub struct StepReport {
     pub terms: Vec<(&'static str, f64)>,
     /// Raster passes this step.
     pub passes: usize,
+    /// Tile-splat pairs of this step's passes.
+    pub tile_splats: u64,
     /// Whether the update was skipped.
     pub skipped: bool,
     /// Densification done after this step.
@@ -69,6 +75,8 @@ pub struct Forward {
     pub renders: crate::model::Renders,
     /// Raster passes run (including the multi-view neighbour).
     pub passes: usize,
+    /// Tile-splat pairs of those passes.
+    pub tile_splats: u64,
     /// Training view index.
     pub view: usize,
     /// Whether the step is in stage 2.
@@ -447,6 +455,7 @@ impl Trainer {
         let opts = self.render_options(step, true);
         let r = self.model.render(&view.camera, &view.rays, opts)?;
         let mut passes = r.passes;
+        let mut tile_splats = r.tile_splats;
         let mut terms: Vec<(&'static str, Tensor<1>)> = Vec::new();
         let w = &cfg.weights;
         terms.push((
@@ -489,6 +498,7 @@ impl Trainer {
                 let nv = self.views[ni].clone();
                 let ng = self.model.render_depth(&nv.camera, &nv.rays)?;
                 passes += 1;
+                tile_splats += ng.tile_splats;
                 let valid_n = valid_pixels(&ng.coverage, nv.mask.as_ref());
                 let mv = losses::multi_view(
                     &g.depth,
@@ -544,6 +554,7 @@ impl Trainer {
             terms,
             renders: r,
             passes,
+            tile_splats,
             view: vi,
             stage2,
         })
@@ -582,6 +593,7 @@ impl Trainer {
             terms,
             renders: r,
             passes,
+            tile_splats,
             view: vi,
             stage2,
         } = self.forward(step)?;
@@ -592,6 +604,7 @@ impl Trainer {
             .map(|(n, t)| (*n, t.clone().into_scalar::<f64>()))
             .collect();
         self.counters.passes += passes;
+        self.counters.tile_splats += tile_splats;
         let grads = total.backward();
         let collect = |set: &GaussianSet| -> HashMap<ParamKind, Tensor<2>> {
             set.params
@@ -619,6 +632,7 @@ impl Trainer {
             loss,
             terms: term_values,
             passes,
+            tile_splats,
             skipped: !all_finite,
             densified: None,
             counts: self.model.counts(),

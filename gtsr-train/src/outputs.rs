@@ -561,6 +561,10 @@ struct Metrics {
     interior_gaussians: usize,
     skipped_steps: usize,
     raster_passes: usize,
+    /// Tile-splat pairs blended over the run (every pass), and their mean per pass: what the
+    /// passes cost, beside their number.
+    tile_splats: u64,
+    tile_splats_per_pass: f64,
     test_psnr: f64,
     test_ssim: f64,
     test_psnr_masked: Option<f64>,
@@ -605,6 +609,9 @@ pub fn finish(
         interior_gaussians: ni,
         skipped_steps: trainer.counters.skipped_steps,
         raster_passes: trainer.counters.passes,
+        tile_splats: trainer.counters.tile_splats,
+        tile_splats_per_pass: trainer.counters.tile_splats as f64
+            / trainer.counters.passes.max(1) as f64,
         test_psnr: e.psnr,
         test_ssim: e.ssim,
         test_psnr_masked: e.psnr_masked,

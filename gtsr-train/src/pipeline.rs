@@ -433,8 +433,15 @@ pub fn run(args: &Args) -> Result<Outcome> {
         ));
         if trainer.step % log_every == 0 && bar.is_hidden() {
             println!(
-                "step {:6}/{iterations}  stage {}  loss {:.4}  gaussians {}+{}  {:.1} s",
-                trainer.step, r.stage, r.loss, r.counts.0, r.counts.1, train_seconds
+                "step {:6}/{iterations}  stage {}  loss {:.4}  gaussians {}+{}  \
+                 tile-splats/pass {}  {:.1} s",
+                trainer.step,
+                r.stage,
+                r.loss,
+                r.counts.0,
+                r.counts.1,
+                r.tile_splats / r.passes.max(1) as u64,
+                train_seconds
             );
         }
         if eval_steps.contains(&trainer.step) {

@@ -59,3 +59,60 @@ fn switches_change_allocations_and_pass_counts() {
             .is_none()
     );
 }
+
+/// Tile-splat pairs: each pass reports what it blended, a step sums its passes, the counters
+/// sum the steps.
+#[test]
+fn tile_splat_pairs_add_up_over_passes_and_steps() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    let mut t = trainer(
+        &scene,
+        small_config(Preset::Full.components().unwrap(), 6),
+        &device,
+    );
+
+    // Stage 1 blends the surface set once, in the same pass as its geometry: the step's pairs
+    // are the depth-only render's of the same view.
+    let vi = t.view_for_step(t.step);
+    let v = t.views[vi].clone();
+    let alone = t
+        .model
+        .render_depth(&v.camera, &v.rays)
+        .unwrap()
+        .tile_splats;
+    assert!(alone > 0, "the tiny scene's surface set is on screen");
+    let r1 = t.step().unwrap();
+    assert_eq!((r1.stage, r1.passes, r1.tile_splats), (1, 1, alone));
+
+    // Stage 2: C_SH (both sets), geometry (surface), scattering (interior), the neighbour
+    // (surface). The geometry pass is the depth-only render again, and the whole is more than
+    // the geometry and neighbour passes.
+    t.step = t.config.stage2_start;
+    let f = t.forward(t.step).unwrap();
+    let v = t.views[f.view].clone();
+    let geometry = f.renders.geometry.as_ref().unwrap().tile_splats;
+    assert_eq!(
+        geometry,
+        t.model
+            .render_depth(&v.camera, &v.rays)
+            .unwrap()
+            .tile_splats
+    );
+    assert_eq!(f.passes, 4);
+    assert!(
+        f.renders.tile_splats > geometry,
+        "C_SH and scattering passes counted"
+    );
+    assert!(
+        f.tile_splats > f.renders.tile_splats,
+        "the neighbour pass counted"
+    );
+    drop(f);
+
+    let before = t.counters.tile_splats;
+    assert_eq!(before, alone, "the counters hold the stage-1 step");
+    let r2 = t.step().unwrap();
+    assert_eq!(t.counters.tile_splats, before + r2.tile_splats);
+}
