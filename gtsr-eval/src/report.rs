@@ -41,6 +41,10 @@ pub struct ReportRow {
     pub seconds: Option<f64>,
     /// Number of Gaussians.
     pub gaussians: Option<u64>,
+    /// Mean tile-splat pairs blended per training step (what a step cost; printed in
+    /// thousands).
+    #[serde(default)]
+    pub tile_splats_per_step: Option<f64>,
 }
 
 fn cell(s: &str) -> String {
@@ -67,16 +71,18 @@ pub fn format_duration(seconds: f64) -> String {
 
 /// A GitHub-flavoured markdown table: method, scene, chamfer x 1e3 (2 decimals), the same
 /// against the whole ground truth, F-score (3), depth error and bias x 1e3 (2), normal error
-/// (degrees, 1), PSNR (2), SSIM (4), time (`h:mm:ss`), Gaussians.
+/// (degrees, 1), PSNR (2), SSIM (4), time (`h:mm:ss`), Gaussians, tile-splat pairs per step
+/// (thousands, 1).
 pub fn markdown_table(rows: &[ReportRow]) -> String {
     let mut s = String::from(
         "| method | scene | chamfer x1e3 | chamfer x1e3, whole GT | F-score | depth err x1e3 | \
-         depth bias x1e3 | normal err (deg) | PSNR | SSIM | time | Gaussians |\n\
-         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+         depth bias x1e3 | normal err (deg) | PSNR | SSIM | time | Gaussians | \
+         tile-splats/step |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
         s.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
             cell(&r.method),
             cell(&r.scene),
             opt(r.chamfer, |v| format!("{:.2}", v * 1e3)),
@@ -91,6 +97,7 @@ pub fn markdown_table(rows: &[ReportRow]) -> String {
             r.gaussians
                 .map(|g| g.to_string())
                 .unwrap_or_else(|| "-".into()),
+            opt(r.tile_splats_per_step, |v| format!("{:.1}k", v / 1e3)),
         ));
     }
     s

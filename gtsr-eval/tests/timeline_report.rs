@@ -79,6 +79,7 @@ fn markdown_table_formats_and_escapes() {
             ssim: Some(0.99612),
             seconds: Some(9000.4),
             gaussians: Some(312_000),
+            tile_splats_per_step: Some(42_647.3),
         },
         ReportRow {
             method: "PGSR".into(),
@@ -93,11 +94,11 @@ fn markdown_table_formats_and_escapes() {
     assert_eq!(
         lines[2],
         "| GTSR | bear\\|1 | 0.71 | 15.20 | 0.988 | 1.23 | -0.40 | 7.3 | 45.28 | 0.9961 | 2:30:00 | \
-         312000 |"
+         312000 | 42.6k |"
     );
     assert_eq!(
         lines[3],
-        "| PGSR | bear | - | - | - | - | - | - | - | - | 2:05 | - |"
+        "| PGSR | bear | - | - | - | - | - | - | - | - | 2:05 | - | - |"
     );
     assert_eq!(format_duration(59.6), "1:00");
     let dir = tempfile::tempdir().unwrap();

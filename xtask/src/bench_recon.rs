@@ -58,6 +58,9 @@ struct Metrics {
     mesh_whole_gt: Option<MeshM>,
     #[serde(default)]
     test_depth: Option<gtsr_eval::DepthMetrics>,
+    /// Absent in runs from before gtsr-train counted them.
+    #[serde(default)]
+    tile_splats: Option<u64>,
 }
 
 #[derive(serde::Deserialize)]
@@ -269,6 +272,10 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                 ssim: Some(m.test_ssim),
                 seconds: Some(m.train_seconds),
                 gaussians: Some(m.surface_gaussians + m.interior_gaussians),
+                tile_splats_per_step: m
+                    .tile_splats
+                    .filter(|_| m.iterations > 0)
+                    .map(|t| t as f64 / m.iterations as f64),
             });
             if let Ok(tl) = Timeline::read_csv(&out.join("error_vs_time.csv")) {
                 series.push((format!("{name} {method}"), tl));
