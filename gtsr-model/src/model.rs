@@ -162,17 +162,11 @@ fn cat_prepared(a: &Prepared, b: &Prepared) -> Prepared {
 /// one read.
 fn radii_and_tiles(aux: Tensor<2>) -> (Vec<f32>, u64) {
     let v = host_vec(aux);
-    let radii = v.chunks_exact(4).map(|r| r[0]).collect();
-    (radii, tile_sum(&v))
-}
-
-/// Tile-splat pairs of a render's `aux` (the sum of its column 2).
-fn tile_pairs(aux: Tensor<2>) -> u64 {
-    tile_sum(&host_vec(aux))
-}
-
-fn tile_sum(aux: &[f32]) -> u64 {
-    aux.chunks_exact(4).map(|r| r[2].max(0.0) as u64).sum()
+    let rows = v.chunks_exact(4);
+    (
+        rows.clone().map(|r| r[0]).collect(),
+        rows.map(|r| r[2].max(0.0) as u64).sum(),
+    )
 }
 
 impl Model {
@@ -347,7 +341,7 @@ impl Model {
             let feats = self.geometry_features(&surf, camera, material);
             let out = splat(&surf, surf.opacities.clone(), feats, camera, self.blur_px2)?;
             passes += 1;
-            let tiles = tile_pairs(out.aux);
+            let (_, tiles) = radii_and_tiles(out.aux);
             tile_splats += tiles;
             geometry_out = Some((out.image, out.alpha, tiles));
         }
@@ -385,7 +379,7 @@ impl Model {
                     self.blur_px2,
                 )?;
                 passes += 1;
-                tile_splats += tile_pairs(out.aux);
+                tile_splats += radii_and_tiles(out.aux).1;
                 Some(out.image)
             }
             _ => None,
@@ -448,7 +442,7 @@ impl Model {
             depth,
             base: None,
             roughness: None,
-            tile_splats: tile_pairs(out.aux),
+            tile_splats: radii_and_tiles(out.aux).1,
         })
     }
 }

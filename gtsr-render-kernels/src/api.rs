@@ -147,9 +147,9 @@ fn check_shape(
 
 /// Splats `inputs` into the camera of `config`.
 ///
-/// Projection (EWA, `config.blur_px2` screen-space blur, Jacobian clamp, near/far and non-finite culling), depth sort
-/// and 16x16 tile binning, and front-to-back blending follow the 3DGS conventions; see the
-/// crate docs. On an autodiff device the image and alpha are differentiable with respect to
+/// Projection (EWA, `config.blur_px2` screen-space blur, Jacobian clamp, near/far and
+/// non-finite culling), depth sort and 16x16 tile binning, and front-to-back blending follow
+/// the 3DGS conventions; see the crate docs. On an autodiff device the image and alpha are differentiable with respect to
 /// every input tensor.
 ///
 /// ```
