@@ -272,6 +272,13 @@ pub struct LossWeights {
     pub flatten: f64,
     /// L1 between the surface set's alpha and the mask (when the data has masks).
     pub mask: f64,
+    /// Layer spread (not in the paper; 0, off, by default): the mean over the valid pixels of
+    /// the blend-weighted standard deviation of the depths at which the surface splats cross
+    /// the pixel's ray, in pixels (see [`crate::losses::layer_spread`]). 2DGS's depth
+    /// distortion in another form: it asks the surface set for one layer per pixel instead of
+    /// a stack of faint ones.
+    #[serde(default)]
+    pub spread: f64,
 }
 
 impl Default for LossWeights {
@@ -286,6 +293,7 @@ impl Default for LossWeights {
             smooth_base: 0.01,
             flatten: 100.0,
             mask: 0.1,
+            spread: 0.0,
         }
     }
 }
@@ -513,10 +521,26 @@ impl TrainConfig {
             ("lr.position_end", self.lr.position_end),
             ("densify.grad_threshold", self.densify.grad_threshold),
             ("blur_px2", self.blur_px2),
+            ("weights.lambda_l1", self.weights.lambda_l1),
+            ("weights.single_view_start", self.weights.single_view_start),
+            ("weights.single_view_end", self.weights.single_view_end),
+            ("weights.multi_view", self.weights.multi_view),
+            ("weights.interior", self.weights.interior),
+            ("weights.smooth_roughness", self.weights.smooth_roughness),
+            ("weights.smooth_base", self.weights.smooth_base),
+            ("weights.flatten", self.weights.flatten),
+            ("weights.mask", self.weights.mask),
+            ("weights.spread", self.weights.spread),
         ] {
             if !v.is_finite() || v < 0.0 {
                 bad.push(format!("{name} must be finite and non-negative, got {v}"));
             }
+        }
+        if !(0.0..=1.0).contains(&self.weights.lambda_l1) {
+            bad.push(format!(
+                "weights.lambda_l1 must be in [0, 1], got {}",
+                self.weights.lambda_l1
+            ));
         }
         if !(0.0..=1.0).contains(&self.f0) {
             bad.push(format!("f0 must be in [0, 1], got {}", self.f0));

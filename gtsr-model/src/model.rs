@@ -54,6 +54,9 @@ pub struct RenderOptions {
     pub shading: ShadingParams,
     /// Encode C_PBR with the sRGB curve.
     pub pbr_srgb: bool,
+    /// With `geometry`: also blend the plane moments of [`GeometryMaps::spread`]
+    /// ([`SPREAD_CHANNELS`] more channels in the geometry pass).
+    pub spread: bool,
 }
 
 /// Geometry and material maps of the surface set.
@@ -71,6 +74,13 @@ pub struct GeometryMaps {
     pub base: Option<Tensor<3>>,
     /// `[H, W]` roughness (premultiplied), with PBR.
     pub roughness: Option<Tensor<2>>,
+    /// `[H, W]` when asked for ([`RenderOptions::spread`]): the variance, over the splats
+    /// blended at each pixel and weighted by their blend weights, of the inverse depth at
+    /// which each splat's plane crosses the pixel's ray (`E[u^2] - E[u]^2` with `u = 1 / t`,
+    /// clamped at 0; inverse scene units squared). Zero for one layer of splats, however
+    /// curved, large for a stack of faint layers one behind another: what 2DGS's depth
+    /// distortion measures, from plane moments (see [`spread_features`]).
+    pub spread: Option<Tensor<2>>,
     /// Tile-splat pairs of the pass that rendered these maps (the blend's work: each pair is
     /// one 16x16 tile that one splat touches).
     pub tile_splats: u64,
@@ -229,18 +239,27 @@ impl Model {
         }
     }
 
-    /// Geometry (and material) features `[N, 4 or 8]` of the surface set for `camera`.
-    fn geometry_features(&self, p: &Prepared, camera: &Camera, material: bool) -> Tensor<2> {
+    /// Geometry (and material) features `[N, 4 or 8]` of the surface set for `camera`; with
+    /// `spread` [`SPREAD_CHANNELS`] more, from [`spread_features`].
+    fn geometry_features(
+        &self,
+        p: &Prepared,
+        camera: &Camera,
+        material: bool,
+        spread: bool,
+    ) -> Tensor<2> {
         let n = p.means.dims()[0];
         let normal_w = p.normals_w.clone().expect("normals prepared");
         let n_c = dir_to_camera(&normal_w, camera);
         let p_c = to_camera(&p.means, camera);
         let plane = (n_c.clone() * p_c).sum_dim(1).neg();
+        let spread_feats = spread.then(|| spread_features(&n_c, &plane, camera));
         let mut f = vec![n_c, plane];
         if material {
             f.push(logistic(self.surface.req(ParamKind::BaseColour).clone()));
             f.push(logistic(self.surface.req(ParamKind::Roughness).clone()));
         }
+        f.extend(spread_feats);
         let out = Tensor::cat(f, 1);
         debug_assert_eq!(out.dims()[0], n);
         out
@@ -276,7 +295,7 @@ impl Model {
         let (c_sh, alpha_sh, surface_radii, interior_radii, int_prepared) = if merged {
             let mut feats = vec![surf.colours.clone()];
             if opts.geometry {
-                feats.push(self.geometry_features(&surf, camera, material));
+                feats.push(self.geometry_features(&surf, camera, material, opts.spread));
             }
             let out = splat(
                 &surf,
@@ -338,7 +357,7 @@ impl Model {
         };
 
         if opts.geometry && geometry_out.is_none() {
-            let feats = self.geometry_features(&surf, camera, material);
+            let feats = self.geometry_features(&surf, camera, material, opts.spread);
             let out = splat(&surf, surf.opacities.clone(), feats, camera, self.blur_px2)?;
             passes += 1;
             let (_, tiles) = radii_and_tiles(out.aux);
@@ -350,7 +369,11 @@ impl Model {
             let normal = maps.clone().slice([0..h, 0..w, 0..3]);
             let plane = maps.clone().slice([0..h, 0..w, 3..4]).reshape([h, w]);
             let depth = unbiased_depth(&normal, &plane, rays);
-            let (base, roughness) = if ch >= 8 {
+            let spread = opts.spread.then(|| {
+                let moments = maps.clone().slice([0..h, 0..w, ch - SPREAD_CHANNELS..ch]);
+                plane_spread(moments, &coverage, rays)
+            });
+            let (base, roughness) = if material {
                 (
                     Some(maps.clone().slice([0..h, 0..w, 4..7])),
                     Some(maps.slice([0..h, 0..w, 7..8]).reshape([h, w])),
@@ -365,6 +388,7 @@ impl Model {
                 depth,
                 base,
                 roughness,
+                spread,
                 tile_splats: tiles,
             }
         });
@@ -429,7 +453,7 @@ impl Model {
         rays: &Tensor<3>,
     ) -> Result<GeometryMaps, ModelError> {
         let surf = self.prepare(&self.surface, camera, true, false);
-        let feats = self.geometry_features(&surf, camera, false);
+        let feats = self.geometry_features(&surf, camera, false, false);
         let out = splat(&surf, surf.opacities.clone(), feats, camera, self.blur_px2)?;
         let [h, w, _] = rays.dims();
         let normal = out.image.clone().slice([0..h, 0..w, 0..3]);
@@ -442,9 +466,76 @@ impl Model {
             depth,
             base: None,
             roughness: None,
+            spread: None,
             tile_splats: radii_and_tiles(out.aux).1,
         })
     }
+}
+
+/// Feature channels the spread adds to the geometry pass ([`spread_features`]).
+pub const SPREAD_CHANNELS: usize = 9;
+
+/// Lower clamp of the plane distance in [`spread_features`], as a fraction of the camera's
+/// distance to the origin: planes that pass closer to the camera than this (splats seen
+/// nearly edge-on) enter with their inverse depth capped.
+pub const SPREAD_MIN_PLANE: f64 = 0.1;
+
+/// Per splat, the moments whose blend gives [`GeometryMaps::spread`]. A splat's plane
+/// `n . x = -d` (camera space, `n` facing the camera) meets the pixel ray `t r` (`r_z = 1`) at
+/// the inverse depth `1 / t = -(n / d) . r`, linear in `m = n / d`; so blending `m` and the six
+/// products `m_a m_b` gives, for every pixel, the blend's mean and mean square of the inverse
+/// depths at which its splats cross that pixel's ray. `m` is taken relative to the plane
+/// `z = c` (`c` the camera's distance to the origin, about the scene's depth), which keeps the
+/// blended squares small so that their difference does not cancel in f32.
+fn spread_features(n_c: &Tensor<2>, plane: &Tensor<2>, camera: &Camera) -> Tensor<2> {
+    let c = camera
+        .centre()
+        .iter()
+        .map(|x| x * x)
+        .sum::<f64>()
+        .sqrt()
+        .max(1e-6);
+    let [n, _] = n_c.dims();
+    let m = n_c.clone() / plane.clone().clamp_min(SPREAD_MIN_PLANE * c);
+    let col = |k: usize| m.clone().slice([0..n, k..k + 1]);
+    let (x, y, z) = (col(0), col(1), col(2) + 1.0 / c);
+    Tensor::cat(
+        vec![
+            x.clone(),
+            y.clone(),
+            z.clone(),
+            x.clone().powi_scalar(2),
+            y.clone().powi_scalar(2),
+            z.clone().powi_scalar(2),
+            x.clone() * y.clone(),
+            x * z.clone(),
+            y * z,
+        ],
+        1,
+    )
+}
+
+/// [`GeometryMaps::spread`] from the blended moments of [`spread_features`] `[H, W, 9]`
+/// (premultiplied), the coverage and the pixel rays.
+fn plane_spread(moments: Tensor<3>, coverage: &Tensor<2>, rays: &Tensor<3>) -> Tensor<2> {
+    let [h, w, _] = moments.dims();
+    let ch = |k: usize| {
+        moments
+            .clone()
+            .slice([0..h, 0..w, k..k + 1])
+            .reshape([h, w])
+    };
+    let rx = rays.clone().slice([0..h, 0..w, 0..1]).reshape([h, w]);
+    let ry = rays.clone().slice([0..h, 0..w, 1..2]).reshape([h, w]);
+    let cover = coverage.clone().clamp_min(crate::pbr::COVER_MIN);
+    // E[m . r] and E[(m . r)^2] with r = (rx, ry, 1).
+    let mean = (ch(0) * rx.clone() + ch(1) * ry.clone() + ch(2)) / cover.clone();
+    let square = (ch(3) * rx.clone().powi_scalar(2)
+        + ch(4) * ry.clone().powi_scalar(2)
+        + ch(5)
+        + (ch(6) * rx.clone() * ry.clone() + ch(7) * rx + ch(8) * ry) * 2.0)
+        / cover;
+    (square - mean.powi_scalar(2)).clamp_min(0.0)
 }
 
 /// A `[1, 1]` tensor holding `value`.

@@ -389,6 +389,7 @@ impl Trainer {
                 min_roughness: self.config.min_roughness,
             },
             pbr_srgb: self.config.pbr_srgb_output,
+            spread: self.config.weights.spread > 0.0,
         }
     }
 
@@ -511,6 +512,12 @@ impl Trainer {
                     cfg.multi_view_max_error_px,
                 );
                 terms.push(("multi_view", mv.loss * w.multi_view));
+            }
+            if let Some(spread) = &g.spread {
+                terms.push((
+                    "spread",
+                    losses::layer_spread(spread, &g.depth, view.camera.fx, &valid) * w.spread,
+                ));
             }
             if let (Some(int), true) = (&self.model.interior, w.interior > 0.0) {
                 terms.push((

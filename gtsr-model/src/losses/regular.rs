@@ -1,6 +1,6 @@
 //! Regularisers: edge-aware material smoothness, flattening, and mask supervision.
 
-use burn::tensor::Tensor;
+use burn::tensor::{Bool, Tensor};
 
 /// Edge-aware smoothness (Relightable 3DGS): mean over pixel pairs inside the mask of
 /// `|grad M| * exp(-|grad I_gt|)`, with precomputed `[H, W-1]` / `[H-1, W]` weights (the
@@ -27,4 +27,29 @@ pub fn flatten(scales: &Tensor<2>) -> Tensor<1> {
 /// Mean `|alpha - mask|`.
 pub fn mask_l1(alpha: &Tensor<2>, mask: &Tensor<2>) -> Tensor<1> {
     (alpha.clone() - mask.clone()).abs().mean()
+}
+
+/// Softening of [`layer_spread`]'s square root, in pixels: keeps its gradient bounded where
+/// the spread is 0.
+pub const LAYER_SPREAD_EPS_PX: f64 = 0.05;
+
+/// Layer spread: the mean over the `valid` pixels of `sqrt(var (z f)^2 + e^2) - e`, with `var`
+/// the inverse-depth variance of the blend ([`crate::model::GeometryMaps::spread`]), `z` the
+/// rendered depth (detached), `f` the focal length in pixels and `e` =
+/// [`LAYER_SPREAD_EPS_PX`]: the standard deviation of the depths at which the blended splats
+/// cross the pixel's ray (about `z^2 sqrt(var)`), in pixel footprints (`z / f`). 0 when every
+/// pixel blends one layer.
+pub fn layer_spread(
+    spread: &Tensor<2>,
+    depth: &Tensor<2>,
+    focal: f64,
+    valid: &Tensor<2, Bool>,
+) -> Tensor<1> {
+    let e = LAYER_SPREAD_EPS_PX;
+    let scale = depth.clone().detach().clamp_min(1e-6) * focal;
+    let px2 = spread.clone() * scale.powi_scalar(2);
+    let std_px = (px2 + e * e).sqrt() - e;
+    let inner = valid.clone().float();
+    let count = inner.clone().sum().clamp_min(1.0);
+    (std_px * inner).sum() / count
 }

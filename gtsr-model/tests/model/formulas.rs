@@ -149,6 +149,7 @@ fn c_sh_matches_direct_evaluation() {
         track_offsets: false,
         shading: SHADING,
         pbr_srgb: false,
+        spread: false,
     };
     let r = model.render(&cam, &rays, opts).unwrap();
     assert_eq!(r.passes, 3, "C_SH, geometry, scattering");
@@ -282,6 +283,160 @@ fn unbiased_depth_is_the_ray_plane_intersection() {
         }
     }
     assert!(checked > 300, "only {checked} covered pixels");
+}
+
+/// Facing discs (normal along the view axis) at world `z` values `zs`, opacity 0.5, seen
+/// head-on from `(0, 0, -4)`: their plane distances are `4 + z`.
+fn facing_stack(zs: &[f32], device: &Device) -> (Model, Camera) {
+    let discs: Vec<([f32; 3], [f32; 4])> = zs
+        .iter()
+        .map(|&z| ([0.0, 0.0, z], [1.0, 0.0, 0.0, 0.0]))
+        .collect();
+    disc_model(&discs, device)
+}
+
+/// Wide flat discs `(mean, quaternion)`, opacity 0.5, and the camera at `(0, 0, -4)` facing +z.
+fn disc_model(discs: &[([f32; 3], [f32; 4])], device: &Device) -> (Model, Camera) {
+    let comps = Components {
+        interior: false,
+        fresnel: false,
+        pbr: false,
+        sh_degree: 0,
+        ..Components::FULL
+    };
+    let lay = layout(SetKind::Surface, 1, false);
+    let mut set = HostSet {
+        kind: SetKind::Surface,
+        n: 0,
+        columns: lay.iter().map(|(k, w)| (*k, *w, Vec::new())).collect(),
+    };
+    for (mean, quat) in discs {
+        set.push_row(&[
+            mean.to_vec(),
+            quat.to_vec(),
+            vec![(100.0f32).ln(), (100.0f32).ln(), (1e-4f32).ln()],
+            vec![0.0],
+            vec![0.0; 3],
+        ]);
+    }
+    let model = Model {
+        components: comps,
+        surface: set.to_device(device),
+        interior: None,
+        log_light: None,
+        sh_degree: 0,
+        blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
+    };
+    let cam = Camera::look_at([0.0, 0.0, -4.0], [0.0; 3], [0.0, -1.0, 0.0], 0.7, 24, 24).unwrap();
+    (model, cam)
+}
+
+#[test]
+fn layer_spread_is_the_weighted_variance_of_the_plane_distances() {
+    let device = Device::ndarray().autodiff();
+    let opts = RenderOptions {
+        stage2: false,
+        geometry: true,
+        track_offsets: false,
+        shading: SHADING,
+        pbr_srgb: false,
+        spread: true,
+    };
+    let centre = 12 * 24 + 12;
+    // Two layers at depths z1 < z2: blend weights 0.5 and 0.25 (the discs are so wide, about
+    // 800 px standard deviation on screen, that their Gaussian is above 0.9997 at every pixel),
+    // so at every pixel the inverse depths 1/z1 and 1/z2 have the variance
+    // (2/3) (1/3) (1/z1 - 1/z2)^2.
+    let two = |z1: f64, z2: f64| 2.0 / 9.0 * (1.0 / z1 - 1.0 / z2).powi(2);
+    for (zs, want) in [
+        (vec![-0.1f32, 0.1], two(3.9, 4.1)),
+        (vec![0.3f32, 0.5], two(4.3, 4.5)),
+        (vec![0.0f32], 0.0),
+        (vec![0.2f32, 0.2], 0.0),
+    ] {
+        let (model, cam) = facing_stack(&zs, &device);
+        let rays = pixel_rays(&cam, &device);
+        let r = model.render(&cam, &rays, opts).unwrap();
+        let g = r.geometry.expect("geometry maps");
+        let spread = g.spread.clone().expect("asked for the spread");
+        let v: Vec<f32> = spread
+            .clone()
+            .into_data()
+            .convert::<f32>()
+            .into_vec()
+            .unwrap();
+        for (p, x) in v.iter().enumerate() {
+            assert!(
+                (f64::from(*x) - want).abs() < 1e-3 * want + 1e-9,
+                "layers {zs:?}: spread {x} at pixel {p}, want {want}"
+            );
+        }
+        // The loss: the depth spread z^2 sqrt(var) in pixel footprints z / f, softened by e.
+        let valid = g.coverage.clone().detach().greater_elem(0.1);
+        let loss = losses::layer_spread(&spread, &g.depth, cam.fx, &valid);
+        let z = f64::from(
+            g.depth
+                .clone()
+                .into_data()
+                .convert::<f32>()
+                .into_vec::<f32>()
+                .unwrap()[centre],
+        );
+        let e = losses::regular::LAYER_SPREAD_EPS_PX;
+        let px = want.sqrt() * z * cam.fx;
+        let expect = (px * px + e * e).sqrt() - e;
+        let got = loss.clone().into_scalar::<f64>();
+        assert!(
+            (got - expect).abs() < 1e-3 * expect.max(1e-3),
+            "layers {zs:?}: loss {got}, want {expect}"
+        );
+        // Its gradient reaches the layers' positions and opacities, finite also at 0 spread.
+        let grads = loss.backward();
+        for k in [ParamKind::Means, ParamKind::Opacity] {
+            let gr = model.surface.req(k).grad(&grads).expect("a gradient");
+            let gv: Vec<f32> = gr.into_data().convert::<f32>().into_vec().unwrap();
+            assert!(gv.iter().all(|x| x.is_finite()), "{k:?}: {gv:?}");
+            if zs.len() == 2 && want > 0.0 && k == ParamKind::Means {
+                // Pulling the layers together lowers the loss: the front one moves back (+z),
+                // the back one forward.
+                assert!(gv[2] < 0.0 && gv[5] > 0.0, "layers {zs:?}: dL/dz {gv:?}");
+            }
+        }
+    }
+    // One tilted plane made of two discs whose centres lie at different depths: the splats
+    // cross every ray at the same depth, so the spread is 0 (where a spread of centre depths
+    // would not be).
+    let (a, h) = (0.6f32, 0.3f32);
+    let q = [(a / 2.0).cos(), (a / 2.0).sin(), 0.0, 0.0];
+    let in_plane = |v: f32| [0.0, v * a.cos(), v * a.sin()];
+    let (model, cam) = disc_model(&[(in_plane(-h), q), (in_plane(h), q)], &device);
+    let rays = pixel_rays(&cam, &device);
+    let g = model.render(&cam, &rays, opts).unwrap().geometry.unwrap();
+    let v: Vec<f32> = g
+        .spread
+        .unwrap()
+        .into_data()
+        .convert::<f32>()
+        .into_vec()
+        .unwrap();
+    let worst = v.iter().fold(0.0f32, |m, x| m.max(*x));
+    // (1/z1 - 1/z2)^2 for centre depths 4 -/+ 0.3 sin(0.6) would be 7e-5.
+    assert!(worst < 1e-8, "one tilted plane: spread up to {worst}");
+
+    // Without the option the map is absent and the pass keeps its channels.
+    let (model, cam) = facing_stack(&[0.0], &device);
+    let rays = pixel_rays(&cam, &device);
+    let r = model
+        .render(
+            &cam,
+            &rays,
+            RenderOptions {
+                spread: false,
+                ..opts
+            },
+        )
+        .unwrap();
+    assert!(r.geometry.unwrap().spread.is_none());
 }
 
 #[test]

@@ -149,6 +149,17 @@ fn bad_views_and_configs_are_refused_with_reasons() {
     cfg.init_radius = f64::NAN;
     let e = cfg.validate().unwrap_err();
     assert!(e.contains("f0") && e.contains("init_radius"), "{e}");
+    let mut cfg = small_config(Preset::Full.components().unwrap(), 10);
+    cfg.weights.multi_view = f64::NAN;
+    cfg.weights.spread = -1.0;
+    cfg.weights.lambda_l1 = 1.5;
+    let e = cfg.validate().unwrap_err();
+    assert!(
+        e.contains("weights.multi_view")
+            && e.contains("weights.spread")
+            && e.contains("weights.lambda_l1 must be in [0, 1]"),
+        "{e}"
+    );
     let mut comps = Preset::NoPbr.components().unwrap();
     comps.smoothness = true;
     assert!(comps.validate().is_err());
