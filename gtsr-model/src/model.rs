@@ -79,7 +79,8 @@ pub struct GeometryMaps {
     /// which each splat's plane crosses the pixel's ray (`E[u^2] - E[u]^2` with `u = 1 / t`,
     /// clamped at 0; inverse scene units squared). Zero for one layer of splats, however
     /// curved, large for a stack of faint layers one behind another: what 2DGS's depth
-    /// distortion measures, from plane moments (see [`spread_features`]).
+    /// distortion measures, from nine blended plane moments (`m = n / d` and its products, for
+    /// a splat plane `n . x = -d`: the inverse depth along a ray `r` is `-(m . r)`).
     pub spread: Option<Tensor<2>>,
     /// Tile-splat pairs of the pass that rendered these maps (the blend's work: each pair is
     /// one 16x16 tile that one splat touches).
@@ -472,12 +473,13 @@ impl Model {
     }
 }
 
-/// Feature channels the spread adds to the geometry pass ([`spread_features`]).
+/// Feature channels the spread adds to the geometry pass (the plane moments of
+/// [`GeometryMaps::spread`]).
 pub const SPREAD_CHANNELS: usize = 9;
 
-/// Lower clamp of the plane distance in [`spread_features`], as a fraction of the camera's
-/// distance to the origin: planes that pass closer to the camera than this (splats seen
-/// nearly edge-on) enter with their inverse depth capped.
+/// Lower clamp of the plane distance in the spread's plane moments, as a fraction of the
+/// camera's distance to the origin: planes that pass closer to the camera than this (splats
+/// seen nearly edge-on) enter with their inverse depth capped.
 pub const SPREAD_MIN_PLANE: f64 = 0.1;
 
 /// Per splat, the moments whose blend gives [`GeometryMaps::spread`]. A splat's plane

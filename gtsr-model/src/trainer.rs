@@ -180,7 +180,7 @@ const HULL_MARCH_STEPS: f64 = 200.0;
 /// Initial surface points: uniform in a ball; (mask-carved) only those whose projection lies
 /// inside every training mask that sees them; or (hull-surface) on the boundary of that
 /// carved volume, the masks' visual hull: from each carved point, a walk along a random
-/// direction in steps of [`HULL_MARCH_STEPS`]-ths of the init radius to the first point
+/// direction in steps of `HULL_MARCH_STEPS`-ths (200) of the init radius to the first point
 /// outside some mask, then 12 bisections. `views` and `hosts` are the same views, on the
 /// device and on the host (the masks are read from the host views).
 pub fn initial_points(

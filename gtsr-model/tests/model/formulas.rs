@@ -332,7 +332,7 @@ fn disc_model(discs: &[([f32; 3], [f32; 4])], device: &Device) -> (Model, Camera
 }
 
 #[test]
-fn layer_spread_is_the_weighted_variance_of_the_plane_distances() {
+fn layer_spread_is_the_weighted_variance_of_the_ray_crossing_depths() {
     let device = Device::ndarray().autodiff();
     let opts = RenderOptions {
         stage2: false,
