@@ -521,7 +521,6 @@ impl TrainConfig {
             ("lr.position_end", self.lr.position_end),
             ("densify.grad_threshold", self.densify.grad_threshold),
             ("blur_px2", self.blur_px2),
-            ("weights.lambda_l1", self.weights.lambda_l1),
             ("weights.single_view_start", self.weights.single_view_start),
             ("weights.single_view_end", self.weights.single_view_end),
             ("weights.multi_view", self.weights.multi_view),

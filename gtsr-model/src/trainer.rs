@@ -377,7 +377,8 @@ impl Trainer {
         }
     }
 
-    /// Render options at `step`.
+    /// Render options at `step` (without the spread moments, which only the training loss
+    /// reads: [`Trainer::forward`] asks for them).
     pub fn render_options(&self, step: usize, track_offsets: bool) -> RenderOptions {
         RenderOptions {
             stage2: self.is_stage2(step),
@@ -389,7 +390,7 @@ impl Trainer {
                 min_roughness: self.config.min_roughness,
             },
             pbr_srgb: self.config.pbr_srgb_output,
-            spread: self.config.weights.spread > 0.0,
+            spread: false,
         }
     }
 
@@ -453,7 +454,10 @@ impl Trainer {
         self.model.sh_degree = ((step / cfg.sh_increase_every.max(1)) as u32).min(c.sh_degree);
         let vi = self.view_for_step(step);
         let view = self.views[vi].clone();
-        let opts = self.render_options(step, true);
+        let opts = RenderOptions {
+            spread: cfg.weights.spread > 0.0,
+            ..self.render_options(step, true)
+        };
         let r = self.model.render(&view.camera, &view.rays, opts)?;
         let mut passes = r.passes;
         let mut tile_splats = r.tile_splats;

@@ -206,17 +206,9 @@ fn c_sh_matches_direct_evaluation() {
 #[test]
 fn unbiased_depth_is_the_ray_plane_intersection() {
     let device = Device::ndarray();
-    let comps = Components {
-        interior: false,
-        fresnel: false,
-        pbr: false,
-        sh_degree: 0,
-        ..Components::FULL
-    };
     let cam = camera();
     let rays = pixel_rays(&cam, &device);
     // One large, flat, nearly opaque Gaussian, tilted.
-    let lay = layout(SetKind::Surface, 1, false);
     let (a, b) = (0.4f64, 0.3f64);
     let q = [
         (a / 2.0).cos(),
@@ -225,26 +217,16 @@ fn unbiased_depth_is_the_ray_plane_intersection() {
         0.0,
     ];
     let mean = [0.1f32, -0.05, 0.2];
-    let mut set = HostSet {
-        kind: SetKind::Surface,
-        n: 0,
-        columns: lay.iter().map(|(k, w)| (*k, *w, Vec::new())).collect(),
-    };
-    set.push_row(&[
-        mean.to_vec(),
-        q.iter().map(|v| *v as f32).collect(),
-        vec![(2.0f32).ln(), (2.0f32).ln(), (1e-4f32).ln()],
-        vec![logit(0.999) as f32],
-        vec![0.0; 3],
-    ]);
-    let model = Model {
-        components: comps,
-        surface: set.to_device(&device),
-        interior: None,
-        log_light: None,
-        sh_degree: 0,
-        blur_px2: gtsr_render_kernels::BLUR_PX2,
-    };
+    let model = surface_only_model(
+        &[Splat {
+            mean,
+            quat: q.map(|v| v as f32),
+            scales: [2.0, 2.0, 1e-4],
+            opacity: 0.999,
+        }],
+        gtsr_render_kernels::BLUR_PX2,
+        &device,
+    );
     let g = model.render_depth(&cam, &rays).unwrap();
     let depth: Vec<f32> = g.depth.into_data().convert::<f32>().into_vec().unwrap();
     let cov: Vec<f32> = g.coverage.into_data().convert::<f32>().into_vec().unwrap();
@@ -295,38 +277,60 @@ fn facing_stack(zs: &[f32], device: &Device) -> (Model, Camera) {
     disc_model(&discs, device)
 }
 
-/// Wide flat discs `(mean, quaternion)`, opacity 0.5, and the camera at `(0, 0, -4)` facing +z.
-fn disc_model(discs: &[([f32; 3], [f32; 4])], device: &Device) -> (Model, Camera) {
-    let comps = Components {
-        interior: false,
-        fresnel: false,
-        pbr: false,
-        sh_degree: 0,
-        ..Components::FULL
-    };
+/// One surface Gaussian of [`surface_only_model`].
+struct Splat {
+    mean: [f32; 3],
+    quat: [f32; 4],
+    /// Standard deviations.
+    scales: [f32; 3],
+    opacity: f64,
+}
+
+/// A model of surface Gaussians alone (no interior set, Fresnel or PBR; SH degree 0, black).
+fn surface_only_model(splats: &[Splat], blur_px2: f64, device: &Device) -> Model {
     let lay = layout(SetKind::Surface, 1, false);
     let mut set = HostSet {
         kind: SetKind::Surface,
         n: 0,
         columns: lay.iter().map(|(k, w)| (*k, *w, Vec::new())).collect(),
     };
-    for (mean, quat) in discs {
+    for g in splats {
         set.push_row(&[
-            mean.to_vec(),
-            quat.to_vec(),
-            vec![(100.0f32).ln(), (100.0f32).ln(), (1e-4f32).ln()],
-            vec![0.0],
+            g.mean.to_vec(),
+            g.quat.to_vec(),
+            g.scales.iter().map(|s| s.ln()).collect(),
+            vec![logit(g.opacity) as f32],
             vec![0.0; 3],
         ]);
     }
-    let model = Model {
-        components: comps,
+    Model {
+        components: Components {
+            interior: false,
+            fresnel: false,
+            pbr: false,
+            sh_degree: 0,
+            ..Components::FULL
+        },
         surface: set.to_device(device),
         interior: None,
         log_light: None,
         sh_degree: 0,
-        blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
-    };
+        blur_px2,
+    }
+}
+
+/// Wide flat discs `(mean, quaternion)`, opacity 0.5, and the camera at `(0, 0, -4)` facing +z.
+fn disc_model(discs: &[([f32; 3], [f32; 4])], device: &Device) -> (Model, Camera) {
+    let splats: Vec<Splat> = discs
+        .iter()
+        .map(|&(mean, quat)| Splat {
+            mean,
+            quat,
+            scales: [100.0, 100.0, 1e-4],
+            opacity: 0.5,
+        })
+        .collect();
+    let model = surface_only_model(&splats, gtsr_render_kernels::PIXEL_BOX_BLUR_PX2, device);
     let cam = Camera::look_at([0.0, 0.0, -4.0], [0.0; 3], [0.0, -1.0, 0.0], 0.7, 24, 24).unwrap();
     (model, cam)
 }
