@@ -424,7 +424,7 @@ fn layer_spread_is_the_weighted_variance_of_the_ray_crossing_depths() {
         .into_vec()
         .unwrap();
     let worst = v.iter().fold(0.0f32, |m, x| m.max(*x));
-    // (1/z1 - 1/z2)^2 for centre depths 4 -/+ 0.3 sin(0.6) would be 7e-5.
+    // Centre depths 4 -/+ 0.3 sin(0.6) with these weights would give (2/9)(1/z1 - 1/z2)^2 = 1e-4.
     assert!(worst < 1e-8, "one tilted plane: spread up to {worst}");
 
     // Without the option the map is absent and the pass keeps its channels.
