@@ -112,3 +112,77 @@ pub fn visual_hull(
         0.0,
     ))
 }
+
+/// Voxels along the side of the cameras' box when [`hull_box`] carves the masks.
+pub const HULL_BOX_RESOLUTION: usize = 128;
+
+/// The box around the masks' visual hull: carved at [`HULL_BOX_RESOLUTION`] voxels inside the
+/// cube that holds the ball of the cameras (centred on their mean), grown by two of those
+/// voxels. The object is inside every mask, so the box cannot cut it off. Unlike
+/// [`hull_grid`], a point must also lie in the frustum of at least half of the views: with
+/// cameras all around an object that fills a fair part of each frame, a point right beside
+/// one camera is seen only by the few cameras facing it across the object, through the
+/// object's silhouette, and would otherwise count as inside and stretch the box to the
+/// cameras. `None` when nothing is inside; errors as [`hull_grid`] does.
+pub fn hull_box(views: &[(Camera, &[f32])]) -> Result<Option<(Vec3, Vec3)>> {
+    if views.is_empty() {
+        return Err(EvalError::InvalidArgument(
+            "the hull box needs at least one view".into(),
+        ));
+    }
+    let centres: Vec<Vec3> = views.iter().map(|(c, _)| c.centre()).collect();
+    let mean = centres.iter().copied().sum::<Vec3>() / centres.len() as f32;
+    let reach = centres
+        .iter()
+        .map(|c| c.distance(mean))
+        .fold(0.0f32, f32::max)
+        .max(1e-3);
+    let mut grid = hull_grid(
+        views,
+        mean - Vec3::splat(reach),
+        mean + Vec3::splat(reach),
+        HULL_BOX_RESOLUTION,
+    )?;
+    let [nx, ny, nz] = grid.dims;
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let id = grid.index(i, j, k);
+                if grid.values[id] < 0.0 {
+                    let p = grid.point(i, j, k);
+                    let seen = views
+                        .iter()
+                        .filter(|(cam, _)| {
+                            cam.project(p).is_some_and(|(uv, _)| {
+                                uv.x >= 0.0
+                                    && uv.y >= 0.0
+                                    && uv.x < cam.width as f32
+                                    && uv.y < cam.height as f32
+                            })
+                        })
+                        .count();
+                    if 2 * seen < views.len() {
+                        grid.values[id] = 0.5;
+                    }
+                }
+            }
+        }
+    }
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                if grid.values[grid.index(i, j, k)] < 0.0 {
+                    let p = grid.point(i, j, k);
+                    lo = lo.min(p);
+                    hi = hi.max(p);
+                }
+            }
+        }
+    }
+    if !(lo.is_finite() && hi.is_finite()) {
+        return Ok(None);
+    }
+    let pad = Vec3::splat(2.0 * grid.voxel);
+    Ok(Some((lo - pad, hi + pad)))
+}

@@ -121,6 +121,47 @@ fn visual_hull_of_a_sphere_contains_it_and_is_close() {
 }
 
 #[test]
+fn hull_box_holds_the_object_and_little_more() {
+    // The object fills much of each frame, as in the shared scenes: a point that only a few
+    // cameras see (say near one camera, behind the object for the opposite one) is carved
+    // only by those, and a small object in narrow frusta leaves such points inside the hull.
+    let (centre, r) = (Vec3::new(0.3, -0.2, 0.1), 0.8);
+    let cams = common::cameras_around(centre, 3.0, 40, 50f32.to_radians(), 96);
+    let masks: Vec<Vec<f32>> = cams
+        .iter()
+        .map(|c| common::render_sphere(c, centre, r).1)
+        .collect();
+    let views: Vec<_> = cams
+        .iter()
+        .zip(&masks)
+        .map(|(c, m)| (*c, m.as_slice()))
+        .collect();
+    let (lo, hi) = gtsr_eval::hull::hull_box(&views).unwrap().unwrap();
+    // The carving voxel: the cameras' cube (side 2 * 3.0 around their mean, which is near the
+    // sphere's centre) over HULL_BOX_RESOLUTION.
+    let voxel = 6.0 / gtsr_eval::hull::HULL_BOX_RESOLUTION as f32;
+    for axis in 0..3 {
+        let (a, b) = (lo[axis], hi[axis]);
+        let (c, cmin, cmax) = (centre[axis], centre[axis] - r, centre[axis] + r);
+        assert!(
+            a < cmin && b > cmax,
+            "axis {axis}: box [{a}, {b}] cuts the sphere at {c}"
+        );
+        // Padded by two carving voxels, plus up to one more and the hull's slack.
+        assert!(
+            cmin - a < 4.0 * voxel && b - cmax < 4.0 * voxel,
+            "axis {axis}: box [{a}, {b}] is loose around [{cmin}, {cmax}]"
+        );
+    }
+    // An empty mask leaves nothing inside every mask; no views is an error.
+    let empty = vec![0.0; masks[0].len()];
+    let mut with_empty = views.clone();
+    with_empty.push((cams[0], &empty));
+    assert!(gtsr_eval::hull::hull_box(&with_empty).unwrap().is_none());
+    assert!(gtsr_eval::hull::hull_box(&[]).is_err());
+}
+
+#[test]
 fn silhouette_carving_keeps_the_surface_inside_every_mask() {
     // Images of 32 px (a pixel is 0.045 wide at the sphere, 4.5 voxels), as coarse as training.
     let (voxel, trunc) = (0.01, 0.12);

@@ -157,11 +157,10 @@ fn mesh_bounds(model: &Model) -> (Vec3, Vec3) {
     (lo - pad, hi + pad)
 }
 
-/// With a mask on every view: the box around the masks' visual hull, carved at
-/// [`HULL_BOX_RESOLUTION`] voxels inside the ball of the cameras and grown by two of those
-/// voxels; `None` without masks. The object is inside every mask, so the box cannot cut it
-/// off, whatever the opacity of its surface Gaussians (the Gaussian box keeps only those of
-/// opacity 0.05 and more).
+/// With a mask on every view: the box around the masks' visual hull
+/// ([`gtsr_eval::hull::hull_box`]); `None` without masks. The object is inside every mask, so
+/// the box cannot cut it off, whatever the opacity of its surface Gaussians (the Gaussian box
+/// keeps only those of opacity 0.05 and more).
 pub fn hull_bounds(views: &[gtsr_data::View]) -> Result<Option<(Vec3, Vec3)>> {
     let masked: Vec<(gtsr_data::Camera, &[f32])> = views
         .iter()
@@ -170,41 +169,8 @@ pub fn hull_bounds(views: &[gtsr_data::View]) -> Result<Option<(Vec3, Vec3)>> {
     if masked.is_empty() || masked.len() != views.len() {
         return Ok(None);
     }
-    let centres: Vec<Vec3> = masked.iter().map(|(c, _)| c.centre()).collect();
-    let mean = centres.iter().copied().sum::<Vec3>() / centres.len() as f32;
-    let reach = centres
-        .iter()
-        .map(|c| c.distance(mean))
-        .fold(0.0f32, f32::max)
-        .max(1e-3);
-    let grid = gtsr_eval::hull::hull_grid(
-        &masked,
-        mean - Vec3::splat(reach),
-        mean + Vec3::splat(reach),
-        HULL_BOX_RESOLUTION,
-    )?;
-    let [nx, ny, nz] = grid.dims;
-    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-    for k in 0..nz {
-        for j in 0..ny {
-            for i in 0..nx {
-                if grid.values[grid.index(i, j, k)] < 0.0 {
-                    let p = grid.point(i, j, k);
-                    lo = lo.min(p);
-                    hi = hi.max(p);
-                }
-            }
-        }
-    }
-    if !(lo.is_finite() && hi.is_finite()) {
-        return Ok(None);
-    }
-    let pad = Vec3::splat(2.0 * grid.voxel);
-    Ok(Some((lo - pad, hi + pad)))
+    Ok(gtsr_eval::hull::hull_box(&masked)?)
 }
-
-/// Voxels along the side of the cameras' box when carving the mesh box from the masks.
-const HULL_BOX_RESOLUTION: usize = 128;
 
 /// Pixels whose blended normal makes a cosine below this with the ray are not fused.
 const GRAZING_COS: f32 = 0.2;

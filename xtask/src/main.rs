@@ -1,6 +1,7 @@
 //! Project tasks: `cargo xtask <command>`.
 
 mod bench_recon;
+mod fusion_ceiling;
 mod gen_scene;
 mod stability;
 
@@ -25,6 +26,10 @@ enum Cmd {
     /// PGSR-like baseline (via gtsr-train), plus a mask-only visual hull; write a markdown table
     /// and one combined error-against-time plot.
     BenchRecon(bench_recon::BenchReconArgs),
+    /// Fuse the ground truth's own depth maps as gtsr-train fuses rendered ones (same box,
+    /// voxel, masks, carving) at several truncations: the best chamfer any rendered depth can
+    /// reach through that fusion, against the masks alone.
+    FusionCeiling(fusion_ceiling::FusionCeilingArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -32,5 +37,6 @@ fn main() -> anyhow::Result<()> {
         Cmd::Stability => stability::run(),
         Cmd::GenScene(args) => gen_scene::run(&args),
         Cmd::BenchRecon(args) => bench_recon::run(&args),
+        Cmd::FusionCeiling(args) => fusion_ceiling::run(&args),
     }
 }

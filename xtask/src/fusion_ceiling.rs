@@ -1,0 +1,297 @@
+//! `cargo xtask fusion-ceiling`: what the TSDF fusion of gtsr-train makes of *perfect* depth.
+//!
+//! The ground-truth mesh is ray cast through every training pixel (at the training
+//! resolution) and its depth maps go through the fusion gtsr-train uses (the same box, voxel,
+//! masks and silhouette carving; pixels whose normal makes a cosine below 0.2 with the ray
+//! left out, as gtsr-train leaves out grazing rendered depth) at several truncations. The
+//! chamfer of those meshes is the best any rendered depth can give through this fusion at
+//! this resolution: when it does not beat the masks alone, no method can beat the visual hull
+//! by its depth maps, however good they are. `--biases` shifts the true depth behind (or in
+//! front of) the surface, to see how near it rendered depth must come to add anything.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use glam::Vec3;
+use gtsr_data::{Downscale, LoadOptions, Scene, load_scene};
+use gtsr_eval::{
+    MeshRaycaster, SEEN_MIN_EYES, TsdfVolume, chamfer_seen_and_whole, default_voxel_for_radius,
+    largest_component,
+};
+
+/// Options of `fusion-ceiling`.
+#[derive(Args, Debug)]
+pub struct FusionCeilingArgs {
+    /// Scene folders (Blender/NeRF with `mesh.ply` and masks).
+    #[arg(long, num_args = 1.., required = true)]
+    pub data: Vec<PathBuf>,
+    /// Where the meshes and the table go.
+    #[arg(long, default_value = "fusion-ceiling")]
+    pub out: PathBuf,
+    /// Longest image side (the training resolution of the runs to compare with).
+    #[arg(long, default_value_t = 64)]
+    pub resolution: u32,
+    /// Short truncations to try with silhouette carving, in training-pixel footprints.
+    #[arg(long, num_args = 1.., default_values_t = [1.0f32, 2.0, 4.0])]
+    pub footprints: Vec<f32>,
+    /// Depth errors to add (scene units, positive: behind the surface), each fused at the
+    /// longest of `--footprints`: how near the surface rendered depth must come to add to
+    /// the masks.
+    #[arg(long, num_args = 0.., allow_negative_numbers = true)]
+    pub biases: Vec<f32>,
+    /// Leave out the fusion of the depth alone (no carving).
+    #[arg(long)]
+    pub no_depth_alone: bool,
+    /// Leave out the masks-only and default-truncation fusions.
+    #[arg(long)]
+    pub no_default: bool,
+}
+
+/// gtsr-train's grazing cut: depth whose normal makes a smaller cosine with the ray is not fused.
+const GRAZING_COS: f32 = 0.2;
+
+/// gtsr-train's default truncation with carving, in radii of the mesh box ...
+const TRUNCATION_RADII: f32 = 0.75;
+/// ... or in pixel footprints, whichever is larger.
+const TRUNCATION_FOOTPRINTS: f32 = 6.0;
+/// gtsr-train's truncation for depth alone (`--no-silhouette-carving`), in footprints.
+const DEPTH_ONLY_FOOTPRINTS: f32 = 2.0;
+
+/// One fusion: the label, whether the masks carve, whether depth is fused, the truncation,
+/// the depth error added.
+struct Variant {
+    label: String,
+    carving: bool,
+    depth: bool,
+    truncation: f32,
+    bias: f32,
+}
+
+/// The median over the training cameras of a pixel's footprint at `centre`.
+fn median_footprint(scene: &Scene, centre: Vec3) -> f32 {
+    let mut f: Vec<f32> = scene
+        .train
+        .iter()
+        .map(|v| {
+            let z = v.camera.world_to_camera.transform_point3(centre).z;
+            z.abs() / v.camera.fx.max(v.camera.fy).max(1e-6)
+        })
+        .filter(|f| f.is_finite())
+        .collect();
+    f.sort_by(f32::total_cmp);
+    f.get(f.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// One fused mesh's numbers.
+struct Row {
+    label: String,
+    /// Chamfer against the seen ground truth.
+    chamfer: f64,
+    /// Chamfer against all of it.
+    chamfer_whole: f64,
+    fscore: f64,
+    seconds: f64,
+}
+
+/// The rows of one scene.
+fn scene_rows(scene_dir: &Path, args: &FusionCeilingArgs) -> Result<Vec<Row>> {
+    let opts = LoadOptions {
+        downscale: Downscale::MaxSide(args.resolution),
+        ..LoadOptions::default()
+    };
+    let scene = load_scene(scene_dir, &opts)?;
+    if scene.normalisation_applied {
+        bail!(
+            "{}: expected a Blender scene in file units",
+            scene_dir.display()
+        );
+    }
+    let masked: Vec<(gtsr_data::Camera, &[f32])> = scene
+        .train
+        .iter()
+        .filter_map(|v| v.mask.as_deref().map(|m| (v.camera, m)))
+        .collect();
+    if masked.len() != scene.train.len() || masked.is_empty() {
+        bail!("{}: every training view needs a mask", scene_dir.display());
+    }
+    let gt_path = scene
+        .mesh_path
+        .clone()
+        .with_context(|| format!("{}: no mesh.ply", scene_dir.display()))?;
+    let gt = gtsr_data::ply::read_ply(&gt_path)?;
+    let caster = MeshRaycaster::new(&gt, "ground truth")?;
+    let (lo, hi) = gtsr_eval::hull::hull_box(&masked)?
+        .with_context(|| format!("{}: nothing is inside every mask", scene_dir.display()))?;
+    let radius = 0.5 * (hi - lo).max_element();
+    let voxel = default_voxel_for_radius(radius);
+    let footprint = median_footprint(&scene, 0.5 * (lo + hi));
+    let long = (TRUNCATION_RADII * radius).max(TRUNCATION_FOOTPRINTS * footprint);
+    println!(
+        "{}: box radius {radius:.3}, voxel {voxel:.5}, footprint {footprint:.4}, \
+         default truncation {long:.3}",
+        scene_dir.display()
+    );
+
+    // The ground truth's depth per training view, masked and without grazing pixels.
+    let depths: Vec<Vec<f32>> = scene
+        .train
+        .iter()
+        .map(|v| {
+            let c = &v.camera;
+            let md = caster.render(c);
+            let mask = v.mask.as_deref().expect("checked above");
+            (0..md.depth.len())
+                .map(|p| {
+                    let (i, j) = ((p % md.width) as f32, (p / md.width) as f32);
+                    let ray = c.camera_direction(i + 0.5, j + 0.5).normalize();
+                    let keep = mask[p] >= 0.5
+                        && md.depth[p] > 0.0
+                        && -md.normal[p].dot(ray) >= GRAZING_COS;
+                    if keep { md.depth[p] } else { 0.0 }
+                })
+                .collect()
+        })
+        .collect();
+
+    let mut variants = Vec::new();
+    if !args.no_default {
+        variants.push(Variant {
+            label: "masks only (no depth), default truncation".into(),
+            carving: true,
+            depth: false,
+            truncation: long,
+            bias: 0.0,
+        });
+        variants.push(Variant {
+            label: format!("true depth + masks, default truncation ({long:.3})"),
+            carving: true,
+            depth: true,
+            truncation: long,
+            bias: 0.0,
+        });
+    }
+    for &k in &args.footprints {
+        variants.push(Variant {
+            label: format!(
+                "true depth + masks, truncation {k} footprints ({:.3})",
+                k * footprint
+            ),
+            carving: true,
+            depth: true,
+            truncation: (k * footprint).max(voxel),
+            bias: 0.0,
+        });
+    }
+    if let Some(k) = args.footprints.iter().copied().reduce(f32::max) {
+        for &b in &args.biases {
+            variants.push(Variant {
+                label: format!(
+                    "true depth {b:+} + masks, truncation {k} footprints ({:.3})",
+                    k * footprint
+                ),
+                carving: true,
+                depth: true,
+                truncation: (k * footprint).max(voxel),
+                bias: b,
+            });
+        }
+    }
+    if !args.no_depth_alone {
+        variants.push(Variant {
+            label: format!(
+                "true depth alone, truncation {DEPTH_ONLY_FOOTPRINTS} footprints ({:.3})",
+                DEPTH_ONLY_FOOTPRINTS * footprint
+            ),
+            carving: false,
+            depth: true,
+            truncation: (DEPTH_ONLY_FOOTPRINTS * footprint).max(voxel),
+            bias: 0.0,
+        });
+    }
+
+    let eyes: Vec<Vec3> = scene.train.iter().map(|v| v.camera.centre()).collect();
+    let (gl, gh) = gt.bounds();
+    let threshold = 0.01 * 0.5 * (gh - gl).max_element();
+    let name = scene_dir
+        .file_name()
+        .map_or_else(|| "scene".to_string(), |s| s.to_string_lossy().into_owned());
+    let dir = args.out.join(&name);
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut rows = Vec::new();
+    for (n, var) in variants.iter().enumerate() {
+        let t0 = Instant::now();
+        let mut tsdf = TsdfVolume::new(lo, hi, voxel, var.truncation)?;
+        if var.carving {
+            tsdf = tsdf.with_silhouette_carving();
+        }
+        for (v, d) in scene.train.iter().zip(&depths) {
+            // Depth 0 is no measurement and stays so; the rest move by the bias.
+            let depth: Vec<f32> = d
+                .iter()
+                .map(|&z| {
+                    if var.depth && z > 0.0 {
+                        (z + var.bias).max(0.0)
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            let mask = v.mask.as_deref().expect("checked above");
+            tsdf.integrate(&v.camera, &depth, var.carving.then_some(mask))?;
+        }
+        let mesh = largest_component(&tsdf.extract_mesh());
+        if mesh.triangles.is_empty() {
+            bail!("{name}: {}: empty mesh", var.label);
+        }
+        let (seen, whole) =
+            chamfer_seen_and_whole(&mesh, &gt, &eyes, SEEN_MIN_EYES, 50_000, threshold, 0)?;
+        let secs = t0.elapsed().as_secs_f64();
+        println!(
+            "  {}: chamfer x1e3 {:.2} (whole GT {:.2}), F-score {:.3}, {secs:.0} s",
+            var.label,
+            1e3 * seen.chamfer,
+            1e3 * whole.chamfer,
+            seen.fscore
+        );
+        gtsr_data::ply::write_ply(&dir.join(format!("mesh-{n}.ply")), &mesh)?;
+        rows.push(Row {
+            label: var.label.clone(),
+            chamfer: seen.chamfer,
+            chamfer_whole: whole.chamfer,
+            fscore: seen.fscore,
+            seconds: secs,
+        });
+    }
+    Ok(rows)
+}
+
+/// Runs the experiment and writes `out/fusion-ceiling.md`.
+pub fn run(args: &FusionCeilingArgs) -> Result<()> {
+    let mut md = String::from(
+        "| scene | fusion of the ground truth's depth maps | chamfer x1e3 | whole GT | F-score | time (s) |\n\
+         |---|---|---:|---:|---:|---:|\n",
+    );
+    for scene_dir in &args.data {
+        let name = scene_dir
+            .file_name()
+            .map_or_else(|| "scene".to_string(), |s| s.to_string_lossy().into_owned());
+        for r in scene_rows(scene_dir, args)? {
+            md += &format!(
+                "| {name} | {} | {:.2} | {:.2} | {:.3} | {:.0} |\n",
+                r.label,
+                1e3 * r.chamfer,
+                1e3 * r.chamfer_whole,
+                r.fscore,
+                r.seconds
+            );
+        }
+    }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let path = args.out.join("fusion-ceiling.md");
+    std::fs::write(&path, &md).with_context(|| format!("writing {}", path.display()))?;
+    println!("{md}\ntable {}", path.display());
+    Ok(())
+}
