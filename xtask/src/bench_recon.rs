@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
+use gtsr_data::ply::TriMesh;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_eval::{
     ReportRow, SEEN_MIN_EYES, Timeline, chamfer_seen_and_whole, markdown_table, plot_png,
@@ -69,6 +70,22 @@ struct MeshM {
     fscore: f64,
 }
 
+/// A scene folder's name, as the tables and output folders use it.
+pub(crate) fn scene_name(scene_dir: &Path) -> String {
+    scene_dir
+        .file_name()
+        .map_or_else(|| "scene".to_string(), |s| s.to_string_lossy().into_owned())
+}
+
+/// The scene's ground-truth `mesh.ply`; an error naming the folder when it has none.
+pub(crate) fn ground_truth(scene: &gtsr_data::Scene, scene_dir: &Path) -> Result<TriMesh> {
+    let gt_path = scene
+        .mesh_path
+        .clone()
+        .with_context(|| format!("{}: no mesh.ply", scene_dir.display()))?;
+    Ok(gtsr_data::ply::read_ply(&gt_path)?)
+}
+
 /// The visual hull of the training masks, evaluated and written to `out/mesh.ply`.
 fn hull_row(
     scene_dir: &Path,
@@ -91,11 +108,7 @@ fn hull_row(
     if views.is_empty() {
         bail!("{}: the visual hull needs masks", scene_dir.display());
     }
-    let gt_path = scene
-        .mesh_path
-        .clone()
-        .with_context(|| format!("{}: no mesh.ply", scene_dir.display()))?;
-    let gt = gtsr_data::ply::read_ply(&gt_path)?;
+    let gt = ground_truth(&scene, scene_dir)?;
     let (lo, hi) = gt.bounds();
     let pad = 0.15 * (hi - lo).max_element();
     let hull = visual_hull(&views, lo - pad, hi + pad, hull_res)?;
@@ -233,9 +246,7 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
     let mut rows = Vec::new();
     let mut series: Vec<(String, Timeline)> = Vec::new();
     for scene_dir in &args.data {
-        let name = scene_dir
-            .file_name()
-            .map_or_else(|| "scene".to_string(), |s| s.to_string_lossy().into_owned());
+        let name = scene_name(scene_dir);
         for method in &args.methods {
             let out = args.out.join(&name).join(method);
             // A finished run of the same length is re-extracted and re-evaluated instead of

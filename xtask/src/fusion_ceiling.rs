@@ -10,6 +10,8 @@
 //! front of) the surface, to see how near it rendered depth must come to add anything.
 
 use std::path::{Path, PathBuf};
+
+use crate::bench_recon::{ground_truth, scene_name};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
@@ -96,7 +98,7 @@ struct Row {
 }
 
 /// The rows of one scene.
-fn scene_rows(scene_dir: &Path, args: &FusionCeilingArgs) -> Result<Vec<Row>> {
+fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<Vec<Row>> {
     let opts = LoadOptions {
         downscale: Downscale::MaxSide(args.resolution),
         ..LoadOptions::default()
@@ -116,11 +118,7 @@ fn scene_rows(scene_dir: &Path, args: &FusionCeilingArgs) -> Result<Vec<Row>> {
     if masked.len() != scene.train.len() || masked.is_empty() {
         bail!("{}: every training view needs a mask", scene_dir.display());
     }
-    let gt_path = scene
-        .mesh_path
-        .clone()
-        .with_context(|| format!("{}: no mesh.ply", scene_dir.display()))?;
-    let gt = gtsr_data::ply::read_ply(&gt_path)?;
+    let gt = ground_truth(&scene, scene_dir)?;
     let caster = MeshRaycaster::new(&gt, "ground truth")?;
     let (lo, hi) = gtsr_eval::hull::hull_box(&masked)?
         .with_context(|| format!("{}: nothing is inside every mask", scene_dir.display()))?;
@@ -214,10 +212,7 @@ fn scene_rows(scene_dir: &Path, args: &FusionCeilingArgs) -> Result<Vec<Row>> {
     let eyes: Vec<Vec3> = scene.train.iter().map(|v| v.camera.centre()).collect();
     let (gl, gh) = gt.bounds();
     let threshold = 0.01 * 0.5 * (gh - gl).max_element();
-    let name = scene_dir
-        .file_name()
-        .map_or_else(|| "scene".to_string(), |s| s.to_string_lossy().into_owned());
-    let dir = args.out.join(&name);
+    let dir = args.out.join(name);
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let mut rows = Vec::new();
     for (n, var) in variants.iter().enumerate() {
@@ -274,10 +269,8 @@ pub fn run(args: &FusionCeilingArgs) -> Result<()> {
          |---|---|---:|---:|---:|---:|\n",
     );
     for scene_dir in &args.data {
-        let name = scene_dir
-            .file_name()
-            .map_or_else(|| "scene".to_string(), |s| s.to_string_lossy().into_owned());
-        for r in scene_rows(scene_dir, args)? {
+        let name = scene_name(scene_dir);
+        for r in scene_rows(scene_dir, &name, args)? {
             md += &format!(
                 "| {name} | {} | {:.2} | {:.2} | {:.3} | {:.0} |\n",
                 r.label,
