@@ -47,6 +47,86 @@ pub fn default_voxel_for_radius(radius: f32) -> f32 {
     radius / 256.0
 }
 
+/// Mesh-box radii in the default truncation with free-space votes ([`default_truncation`]).
+pub const TRUNCATION_RADII: f32 = 0.75;
+
+/// Pixel footprints in the default truncation with free-space votes ([`default_truncation`]).
+pub const TRUNCATION_FOOTPRINTS: f32 = 6.0;
+
+/// Pixel footprints in the default truncation without free-space votes
+/// ([`default_truncation`]).
+pub const DEPTH_ONLY_TRUNCATION_FOOTPRINTS: f32 = 2.0;
+
+/// The default truncation for fusing rendered depth (gtsr-train's), from the radius of the
+/// mesh box and the median pixel footprint of the *training* images at its centre
+/// ([`median_pixel_footprint`]).
+///
+/// * With free-space votes (silhouette carving, or scenes without masks): the larger of
+///   [`TRUNCATION_RADII`] radii and [`TRUNCATION_FOOTPRINTS`] footprints. Rendered depth lies
+///   behind the true surface (median error 0.04-0.09 at 64 px, about a footprint), and
+///   KinectFusion drops votes far behind the measured depth: a short truncation puts the
+///   surface at the rendered depth and erodes the object, a long one lets the "inside" votes
+///   of the views that see a point from the far side outweigh the "free" votes of the views
+///   that see it, and the carved field ends at the masks' visual hull. Chamfer x1e3 of one
+///   model per scene at each truncation (64 px, 1500 steps, voxel radius / 256, radius
+///   about 1):
+///
+///   | truncation | 0.25 (0.27) | 0.4 | 0.625 | 0.8 | 1.0 | 1.2 |
+///   |---|---:|---:|---:|---:|---:|---:|
+///   | amber_ingot | 22.2 | 12.0 | 7.51 | 7.48 | | 7.48 |
+///   | wax_knot | 1.84 | 1.80 | 1.80 | | 1.79 | |
+///   | built-in bear | 14.4 | | 3.15 | | 3.03 | |
+///
+///   What the long truncation converges to is the hull: the masks alone through the same
+///   fusion give 1.79 on wax_knot and 1.95 on amber_ingot, as every trained model does
+///   (`cargo xtask bench-recon`). The ground truth's own depth does better only at about 4
+///   footprints (1.67 / 1.83, `cargo xtask fusion-ceiling`).
+/// * Without free-space votes (depth alone on a masked scene, gtsr-train's
+///   `--no-silhouette-carving`): [`DEPTH_ONLY_TRUNCATION_FOOTPRINTS`] footprints. The
+///   wax_knot full model (64 px, footprint 0.045) measured chamfer x1e3 37.8 at 6 footprints,
+///   24.3 at 2 and 29.9 at 1; with the long truncation the surface swelled past the object
+///   (192).
+pub fn default_truncation(radius: f32, footprint: f32, free_space_votes: bool) -> f32 {
+    if free_space_votes {
+        (TRUNCATION_RADII * radius).max(TRUNCATION_FOOTPRINTS * footprint)
+    } else {
+        DEPTH_ONLY_TRUNCATION_FOOTPRINTS * footprint
+    }
+}
+
+/// The median over `cameras` of a pixel's footprint at `point` (its camera-space depth over
+/// the larger focal length, in world units per pixel); 0 without cameras. The footprint of
+/// the training images, not of the fusion's, sets how far off rendered depth can be.
+pub fn median_pixel_footprint<'a>(
+    cameras: impl IntoIterator<Item = &'a Camera>,
+    point: Vec3,
+) -> f32 {
+    let mut f: Vec<f32> = cameras
+        .into_iter()
+        .map(|c| {
+            let z = c.world_to_camera.transform_point3(point).z;
+            z.abs() / c.fx.max(c.fy).max(1e-6)
+        })
+        .filter(|f| f.is_finite())
+        .collect();
+    f.sort_by(f32::total_cmp);
+    f.get(f.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// Depth whose surface normal makes a cosine below this with the viewing ray is not fused
+/// ([`faces_ray`]).
+pub const GRAZING_COS: f32 = 0.2;
+
+/// Whether a depth sample with surface normal `normal`, seen along `ray` (neither needs unit
+/// length), faces the ray enough to be fused: cosine at least [`GRAZING_COS`]. Gaussian
+/// splatting's unbiased depth divides by `-(N . r)`; where the normal is nearly perpendicular
+/// to the ray (silhouettes, mixed pixels) it runs far behind the surface, and fusing it would
+/// carve the surface away along that ray. Zero or non-finite normals do not face the ray.
+pub fn faces_ray(normal: Vec3, ray: Vec3) -> bool {
+    let cos = -normal.dot(ray) / (normal.length() * ray.length()).max(1e-12);
+    cos >= GRAZING_COS
+}
+
 /// A TSDF volume: a [`Grid`] of clamped signed distances plus the fusion weights.
 #[derive(Clone, Debug)]
 pub struct TsdfVolume {

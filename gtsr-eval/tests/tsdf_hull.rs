@@ -2,6 +2,7 @@ mod common;
 
 use glam::Vec3;
 use gtsr_eval::mesh::{component_sizes, icosphere, is_closed};
+use gtsr_eval::tsdf::{default_truncation, faces_ray, median_pixel_footprint};
 use gtsr_eval::{EvalError, TsdfVolume, chamfer, default_voxel_for_radius, visual_hull};
 
 #[test]
@@ -219,4 +220,53 @@ fn silhouette_carving_keeps_the_surface_inside_every_mask() {
         r_plain > r_hull + voxel,
         "{r_plain} against the hull's {r_hull}"
     );
+}
+
+#[test]
+fn default_truncation_follows_the_radius_or_the_training_pixel() {
+    let cam = |size: u32| {
+        gtsr_data::Camera::look_at(
+            Vec3::new(0.0, 0.0, 4.0),
+            Vec3::ZERO,
+            Vec3::Y,
+            0.7,
+            size,
+            size,
+        )
+    };
+    let (c16, c64) = (cam(16), cam(64));
+    let f64px = median_pixel_footprint([&c64, &c64, &c64], Vec3::ZERO);
+    assert!((f64px - 4.0 / c64.fx).abs() < 1e-6, "{f64px}");
+    // The median view decides; no cameras, no footprint.
+    assert_eq!(
+        median_pixel_footprint([&c16, &c64, &c64], Vec3::ZERO),
+        f64px
+    );
+    assert_eq!(
+        median_pixel_footprint([] as [&gtsr_data::Camera; 0], Vec3::ZERO),
+        0.0
+    );
+    // A unit object: the radius decides.
+    let t = default_truncation(1.0, f64px, true);
+    assert!((t - 0.75).abs() < 1e-6, "{t}");
+    // A small object in coarse images: six pixel footprints.
+    let t = default_truncation(0.01, f64px, true);
+    assert!((t - 6.0 * 4.0 / c64.fx).abs() < 1e-4, "{t}");
+    // Without free-space votes, two footprints, whatever the radius.
+    let t = default_truncation(1.0, f64px, false);
+    assert!((t - 2.0 * 4.0 / c64.fx).abs() < 1e-4, "{t}");
+}
+
+#[test]
+fn grazing_depth_is_not_fused() {
+    let ray = Vec3::new(0.0, 0.0, -2.0);
+    // Facing the ray, at any length; at the cut (cos 0.2) still fused.
+    assert!(faces_ray(Vec3::new(0.0, 0.0, 3.0), ray));
+    let at_cut = Vec3::new((1.0f32 - 0.2 * 0.2).sqrt(), 0.0, 0.2 + 1e-6);
+    assert!(faces_ray(at_cut, ray));
+    // Edge-on, facing away, zero and NaN normals: not fused.
+    assert!(!faces_ray(Vec3::new(1.0, 0.0, 0.1), ray));
+    assert!(!faces_ray(Vec3::new(0.0, 0.0, -1.0), ray));
+    assert!(!faces_ray(Vec3::ZERO, ray));
+    assert!(!faces_ray(Vec3::new(f32::NAN, 0.0, 1.0), ray));
 }

@@ -7,6 +7,7 @@ use anyhow::{Context, Result};
 use glam::Vec3;
 use gtsr_data::Scene;
 use gtsr_data::ply::{TriMesh, write_ply};
+use gtsr_eval::tsdf::{default_truncation, faces_ray, median_pixel_footprint};
 use gtsr_eval::{
     DepthComparison, DepthMetrics, ImageRef, MeshMetrics, MeshRaycaster, SEEN_MIN_EYES, Timeline,
     TsdfVolume, chamfer_seen_and_whole, largest_component, psnr, ssim,
@@ -38,68 +39,6 @@ pub struct MeshSettings {
     /// surface Gaussians at each extraction.
     pub bounds: Option<(Vec3, Vec3)>,
 }
-
-/// The default truncation. With silhouette carving (or free-space votes from outside the
-/// masks): the larger of [`TRUNCATION_RADII`] times the radius of the mesh box and
-/// [`TRUNCATION_FOOTPRINTS`] pixel footprints of the *training* images at the box centre
-/// (median over the views). Without free-space votes (`--no-silhouette-carving` on a masked
-/// scene): [`DEPTH_ONLY_TRUNCATION_FOOTPRINTS`] footprints; the wax_knot full model (64 px,
-/// footprint 0.045) fused from its depth alone measured chamfer x1e3 37.8 at 6 footprints,
-/// 24.3 at 2 and 29.9 at 1 (with the long truncation the surface swelled past the object:
-/// 192).
-///
-/// What the long truncation does, measured on 2026-11-22: the rendered depth lies behind the
-/// true surface (median error 0.05 to 0.09 over the test views' pixels, every method, 64 px;
-/// `test_depth` in `metrics.json`), and
-/// KinectFusion keeps the votes in front of the measured depth and drops those far behind it.
-/// A short truncation therefore puts the surface at the rendered depth and erodes the object;
-/// a long one lets the "inside" votes of the views that see a point from the far side
-/// (occluded, up to a truncation behind their depth) outweigh the "free" votes of the views
-/// that see it, and the carved field ends at the masks' visual hull. Chamfer x1e3 of one
-/// model per scene at each truncation (64 px, 1500 steps, voxel radius / 256, radius about 1):
-///
-/// | truncation | 0.25 (0.27) | 0.4 | 0.625 | 0.8 | 1.0 | 1.2 |
-/// |---|---:|---:|---:|---:|---:|---:|
-/// | amber_ingot | 22.2 | 12.0 | 7.51 | 7.48 | | 7.48 |
-/// | wax_knot | 1.84 | 1.80 | 1.80 | | 1.79 | |
-/// | built-in bear | 14.4 | | 3.15 | | 3.03 | |
-///
-/// The long truncation was chosen from this table, but what it converges to is the hull: the
-/// same fusion with every depth map left out (`--silhouettes-only`) gives 1.79 on wax_knot and
-/// 1.95 on amber_ingot, as the full model's fused mesh does (`cargo xtask bench-recon`). For the
-/// depth to add to the masks it has to come nearer the surface first: its median error is
-/// more than a training pixel's footprint (0.045).
-fn default_truncation(
-    radius: f32,
-    centre: Vec3,
-    cameras: &[&gtsr_data::Camera],
-    free_space_votes: bool,
-) -> f32 {
-    let mut footprints: Vec<f32> = cameras
-        .iter()
-        .map(|c| {
-            let z = c.world_to_camera.transform_point3(centre).z;
-            z.abs() / c.fx.max(c.fy).max(1e-6)
-        })
-        .filter(|f| f.is_finite())
-        .collect();
-    footprints.sort_by(f32::total_cmp);
-    let footprint = footprints.get(footprints.len() / 2).copied().unwrap_or(0.0);
-    if free_space_votes {
-        (TRUNCATION_RADII * radius).max(TRUNCATION_FOOTPRINTS * footprint)
-    } else {
-        DEPTH_ONLY_TRUNCATION_FOOTPRINTS * footprint
-    }
-}
-
-/// Pixel footprints in the default truncation.
-const TRUNCATION_FOOTPRINTS: f32 = 6.0;
-
-/// Pixel footprints in the default truncation without free-space votes.
-const DEPTH_ONLY_TRUNCATION_FOOTPRINTS: f32 = 2.0;
-
-/// Mesh-box radii in the default truncation.
-const TRUNCATION_RADII: f32 = 0.75;
 
 /// One evaluation.
 pub struct Evaluation {
@@ -172,9 +111,6 @@ pub fn hull_bounds(views: &[gtsr_data::View]) -> Result<Option<(Vec3, Vec3)>> {
     Ok(gtsr_eval::hull::hull_box(&masked)?)
 }
 
-/// Pixels whose blended normal makes a cosine below this with the ray are not fused.
-const GRAZING_COS: f32 = 0.2;
-
 /// TSDF fusion of the unbiased depth of every training view (depth kept where the mask, or
 /// without masks the surface coverage, is at least 0.5), marching cubes, largest component.
 pub fn extract_mesh(
@@ -211,7 +147,10 @@ pub fn extract_mesh(
     }
     let trunc = settings
         .truncation
-        .unwrap_or_else(|| default_truncation(radius, 0.5 * (lo + hi), &cameras, free_space_votes))
+        .unwrap_or_else(|| {
+            let footprint = median_pixel_footprint(cameras.iter().copied(), 0.5 * (lo + hi));
+            default_truncation(radius, footprint, free_space_votes)
+        })
         .max(voxel);
     let mut tsdf = TsdfVolume::new(lo, hi, voxel, trunc)?;
     if settings.silhouette_carving && masked {
@@ -241,17 +180,11 @@ pub fn extract_mesh(
         let rays = host_vec(rays);
         let mut depth = host_vec(g.depth);
         let cov = host_vec(g.coverage);
-        // The unbiased depth divides by -(N . r): where the blended normal is nearly
-        // perpendicular to the ray (silhouettes, mixed pixels) it runs far behind the surface,
-        // and fusing it would carve the surface away along that ray. Keep pixels whose normal
-        // faces the ray at more than GRAZING_COS.
+        // Grazing pixels: their unbiased depth runs far behind the surface ([`faces_ray`]).
         for (p, d) in depth.iter_mut().enumerate() {
-            let n = &normal[3 * p..3 * p + 3];
-            let r = &rays[3 * p..3 * p + 3];
-            let nl = n.iter().map(|x| x * x).sum::<f32>().sqrt();
-            let rl = r.iter().map(|x| x * x).sum::<f32>().sqrt();
-            let cos = -(n[0] * r[0] + n[1] * r[1] + n[2] * r[2]) / (nl * rl).max(1e-12);
-            if cos < GRAZING_COS {
+            let n = Vec3::from_slice(&normal[3 * p..3 * p + 3]);
+            let r = Vec3::from_slice(&rays[3 * p..3 * p + 3]);
+            if !faces_ray(n, r) {
                 *d = 0.0;
             }
         }
@@ -703,33 +636,5 @@ mod tests {
                 assert_eq!(d == 0.0, dropped, "pixel ({x}, {y}) depth {d}");
             }
         }
-    }
-
-    #[test]
-    fn default_truncation_follows_the_radius_or_the_training_pixel() {
-        let cam = |size: u32| {
-            gtsr_data::Camera::look_at(
-                Vec3::new(0.0, 0.0, 4.0),
-                Vec3::ZERO,
-                Vec3::Y,
-                0.7,
-                size,
-                size,
-            )
-        };
-        // A unit object: the radius decides.
-        let c64 = cam(64);
-        let t = default_truncation(1.0, Vec3::ZERO, &[&c64, &c64, &c64], true);
-        assert!((t - 0.75).abs() < 1e-6, "{t}");
-        // A small object in coarse images: six pixel footprints at its centre.
-        let t = default_truncation(0.01, Vec3::ZERO, &[&c64, &c64, &c64], true);
-        assert!((t - 6.0 * 4.0 / c64.fx).abs() < 1e-4, "{t}");
-        // The median view decides.
-        let c16 = cam(16);
-        let t = default_truncation(0.01, Vec3::ZERO, &[&c16, &c64, &c64], true);
-        assert!((t - 6.0 * 4.0 / c64.fx).abs() < 1e-4, "{t}");
-        // Without free-space votes, two footprints, whatever the radius.
-        let t = default_truncation(1.0, Vec3::ZERO, &[&c64, &c64, &c64], false);
-        assert!((t - 2.0 * 4.0 / c64.fx).abs() < 1e-4, "{t}");
     }
 }

@@ -2,26 +2,29 @@
 //!
 //! The ground-truth mesh is ray cast through every training pixel (at the training
 //! resolution) and its depth maps go through the fusion gtsr-train uses (the same box, voxel,
-//! masks and silhouette carving; pixels whose normal makes a cosine below 0.2 with the ray
-//! left out, as gtsr-train leaves out grazing rendered depth) at several truncations. The
+//! masks, silhouette carving, default truncation and grazing cut, all from
+//! `gtsr_eval::tsdf`) at several truncations. The
 //! chamfer of those meshes is the best any rendered depth can give through this fusion at
 //! this resolution: when it does not beat the masks alone, no method can beat the visual hull
 //! by its depth maps, however good they are. `--biases` shifts the true depth behind (or in
 //! front of) the surface, to see how near it rendered depth must come to add anything.
 
 use std::path::{Path, PathBuf};
-
-use crate::bench_recon::{ground_truth, scene_name};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use glam::Vec3;
-use gtsr_data::{Downscale, LoadOptions, Scene, load_scene};
+use gtsr_data::{Downscale, LoadOptions, load_scene};
+use gtsr_eval::tsdf::{
+    DEPTH_ONLY_TRUNCATION_FOOTPRINTS, default_truncation, faces_ray, median_pixel_footprint,
+};
 use gtsr_eval::{
     MeshRaycaster, SEEN_MIN_EYES, TsdfVolume, chamfer_seen_and_whole, default_voxel_for_radius,
     largest_component,
 };
+
+use crate::bench_recon::{ground_truth, scene_name};
 
 /// Options of `fusion-ceiling`.
 #[derive(Args, Debug)]
@@ -51,16 +54,6 @@ pub struct FusionCeilingArgs {
     pub no_default: bool,
 }
 
-/// gtsr-train's grazing cut: depth whose normal makes a smaller cosine with the ray is not fused.
-const GRAZING_COS: f32 = 0.2;
-
-/// gtsr-train's default truncation with carving, in radii of the mesh box ...
-const TRUNCATION_RADII: f32 = 0.75;
-/// ... or in pixel footprints, whichever is larger.
-const TRUNCATION_FOOTPRINTS: f32 = 6.0;
-/// gtsr-train's truncation for depth alone (`--no-silhouette-carving`), in footprints.
-const DEPTH_ONLY_FOOTPRINTS: f32 = 2.0;
-
 /// One fusion: the label, whether the masks carve, whether depth is fused, the truncation,
 /// the depth error added.
 struct Variant {
@@ -69,21 +62,6 @@ struct Variant {
     depth: bool,
     truncation: f32,
     bias: f32,
-}
-
-/// The median over the training cameras of a pixel's footprint at `centre`.
-fn median_footprint(scene: &Scene, centre: Vec3) -> f32 {
-    let mut f: Vec<f32> = scene
-        .train
-        .iter()
-        .map(|v| {
-            let z = v.camera.world_to_camera.transform_point3(centre).z;
-            z.abs() / v.camera.fx.max(v.camera.fy).max(1e-6)
-        })
-        .filter(|f| f.is_finite())
-        .collect();
-    f.sort_by(f32::total_cmp);
-    f.get(f.len() / 2).copied().unwrap_or(0.0)
 }
 
 /// One fused mesh's numbers.
@@ -124,8 +102,8 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
         .with_context(|| format!("{}: nothing is inside every mask", scene_dir.display()))?;
     let radius = 0.5 * (hi - lo).max_element();
     let voxel = default_voxel_for_radius(radius);
-    let footprint = median_footprint(&scene, 0.5 * (lo + hi));
-    let long = (TRUNCATION_RADII * radius).max(TRUNCATION_FOOTPRINTS * footprint);
+    let footprint = median_pixel_footprint(scene.train.iter().map(|v| &v.camera), 0.5 * (lo + hi));
+    let long = default_truncation(radius, footprint, true);
     println!(
         "{}: box radius {radius:.3}, voxel {voxel:.5}, footprint {footprint:.4}, \
          default truncation {long:.3}",
@@ -144,9 +122,7 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
                 .map(|p| {
                     let (i, j) = ((p % md.width) as f32, (p / md.width) as f32);
                     let ray = c.camera_direction(i + 0.5, j + 0.5).normalize();
-                    let keep = mask[p] >= 0.5
-                        && md.depth[p] > 0.0
-                        && -md.normal[p].dot(ray) >= GRAZING_COS;
+                    let keep = mask[p] >= 0.5 && md.depth[p] > 0.0 && faces_ray(md.normal[p], ray);
                     if keep { md.depth[p] } else { 0.0 }
                 })
                 .collect()
@@ -199,12 +175,12 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
     if !args.no_depth_alone {
         variants.push(Variant {
             label: format!(
-                "true depth alone, truncation {DEPTH_ONLY_FOOTPRINTS} footprints ({:.3})",
-                DEPTH_ONLY_FOOTPRINTS * footprint
+                "true depth alone, truncation {DEPTH_ONLY_TRUNCATION_FOOTPRINTS} footprints ({:.3})",
+                DEPTH_ONLY_TRUNCATION_FOOTPRINTS * footprint
             ),
             carving: false,
             depth: true,
-            truncation: (DEPTH_ONLY_FOOTPRINTS * footprint).max(voxel),
+            truncation: (DEPTH_ONLY_TRUNCATION_FOOTPRINTS * footprint).max(voxel),
             bias: 0.0,
         });
     }
