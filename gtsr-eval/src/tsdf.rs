@@ -79,8 +79,9 @@ pub const DEPTH_ONLY_TRUNCATION_FOOTPRINTS: f32 = 2.0;
 ///
 ///   What the long truncation converges to is the hull: the masks alone through the same
 ///   fusion give 1.79 on wax_knot and 1.95 on amber_ingot, as every trained model does
-///   (`cargo xtask bench-recon`). The ground truth's own depth does better only at about 4
-///   footprints (1.67 / 1.83, `cargo xtask fusion-ceiling`).
+///   (`cargo xtask bench-recon`). The ground truth's own depth does better only at shorter
+///   truncations (1.60 at 2 footprints on wax_knot, 1.79 at 4 on amber_ingot;
+///   `cargo xtask fusion-ceiling`); rendered depth that far off the surface does not.
 /// * Without free-space votes (depth alone on a masked scene, gtsr-train's
 ///   `--no-silhouette-carving`): [`DEPTH_ONLY_TRUNCATION_FOOTPRINTS`] footprints. The
 ///   wax_knot full model (64 px, footprint 0.045) measured chamfer x1e3 37.8 at 6 footprints,
@@ -125,6 +126,80 @@ pub const GRAZING_COS: f32 = 0.2;
 pub fn faces_ray(normal: Vec3, ray: Vec3) -> bool {
     let cos = -normal.dot(ray) / (normal.length() * ray.length()).max(1e-12);
     cos >= GRAZING_COS
+}
+
+/// Depth discontinuities wider than this many pixel footprints are not fused.
+pub const EDGE_FOOTPRINTS: f32 = 2.0;
+
+/// Zeroes the depth of pixels on a depth edge: where a 4-neighbour's depth is off the
+/// pixel's own blended plane (intersected with the neighbour's ray) by more than
+/// [`EDGE_FOOTPRINTS`] pixel footprints. A pixel that straddles an occlusion boundary (one
+/// strand of a knot in front of another) blends two surfaces into a depth between them, well
+/// behind the front one, and would carve it; a slanted but continuous surface is predicted by
+/// its plane and stays. Neighbours without depth (the silhouette) are not edges.
+///
+/// The maps are row-major `w x h`: `depth` z-depth (`<= 0`: none), `normal` and `rays` three
+/// floats a pixel in camera space (rays `((u - cx) / fx, (v - cy) / fy, 1)` through the pixel
+/// centres, normals facing the camera), `plane` the plane's distance `-n . X` (for a surface
+/// point `X = depth * ray`: `depth * -(n . ray)`); `fx` the focal length in pixels. A map of
+/// the wrong size is an error, and nothing is changed.
+pub fn drop_depth_edges(
+    depth: &mut [f32],
+    normal: &[f32],
+    plane: &[f32],
+    rays: &[f32],
+    w: usize,
+    h: usize,
+    fx: f32,
+) -> Result<()> {
+    let n = w * h;
+    for (what, len, per_pixel) in [
+        ("depth map", depth.len(), 1),
+        ("normal map", normal.len(), 3),
+        ("plane map", plane.len(), 1),
+        ("ray map", rays.len(), 3),
+    ] {
+        if len != per_pixel * n {
+            return Err(EvalError::size(
+                what,
+                format!("{per_pixel} x {w}x{h} = {}", per_pixel * n),
+                len,
+            ));
+        }
+    }
+    let orig = depth.to_vec();
+    let at = |v: &[f32], p: usize| [v[3 * p], v[3 * p + 1], v[3 * p + 2]];
+    for y in 0..h {
+        for x in 0..w {
+            let p = y * w + x;
+            let d = orig[p];
+            if d <= 0.0 {
+                continue;
+            }
+            let n = at(normal, p);
+            let tol = EDGE_FOOTPRINTS * d / fx;
+            let neighbours = [
+                (x > 0).then(|| p - 1),
+                (x + 1 < w).then(|| p + 1),
+                (y > 0).then(|| p - w),
+                (y + 1 < h).then(|| p + w),
+            ];
+            let edge = neighbours.into_iter().flatten().any(|q| {
+                let dq = orig[q];
+                if dq <= 0.0 {
+                    return false;
+                }
+                let r = at(rays, q);
+                let ndr = -(n[0] * r[0] + n[1] * r[1] + n[2] * r[2]);
+                let predicted = plane[p] / ndr.max(1e-6);
+                !(predicted.is_finite() && (dq - predicted).abs() <= tol)
+            });
+            if edge {
+                depth[p] = 0.0;
+            }
+        }
+    }
+    Ok(())
 }
 
 /// A TSDF volume: a [`Grid`] of clamped signed distances plus the fusion weights.

@@ -2,7 +2,7 @@ mod common;
 
 use glam::Vec3;
 use gtsr_eval::mesh::{component_sizes, icosphere, is_closed};
-use gtsr_eval::tsdf::{default_truncation, faces_ray, median_pixel_footprint};
+use gtsr_eval::tsdf::{default_truncation, drop_depth_edges, faces_ray, median_pixel_footprint};
 use gtsr_eval::{EvalError, TsdfVolume, chamfer, default_voxel_for_radius, visual_hull};
 
 #[test]
@@ -269,4 +269,63 @@ fn grazing_depth_is_not_fused() {
     assert!(!faces_ray(Vec3::new(0.0, 0.0, -1.0), ray));
     assert!(!faces_ray(Vec3::ZERO, ray));
     assert!(!faces_ray(Vec3::new(f32::NAN, 0.0, 1.0), ray));
+}
+
+/// Rays `((x + 0.5 - c) / f, (y + 0.5 - c) / f, 1)` of a `w x w` image.
+fn rays(w: usize, f: f32) -> Vec<f32> {
+    let c = 0.5 * w as f32;
+    (0..w * w)
+        .flat_map(|p| {
+            let (x, y) = ((p % w) as f32, (p / w) as f32);
+            [(x + 0.5 - c) / f, (y + 0.5 - c) / f, 1.0]
+        })
+        .collect()
+}
+
+/// Depth, normal and plane maps of the plane `n . X = -plane` seen along `rays`.
+fn plane_maps(rays: &[f32], n: [f32; 3], plane: f32) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    let k = rays.len() / 3;
+    let depth = (0..k)
+        .map(|p| {
+            let r = &rays[3 * p..3 * p + 3];
+            plane / -(n[0] * r[0] + n[1] * r[1] + n[2] * r[2])
+        })
+        .collect();
+    (depth, n.repeat(k), vec![plane; k])
+}
+
+#[test]
+fn depth_edges_drop_occlusion_boundaries_and_keep_slanted_surfaces() {
+    let (w, f) = (16, 20.0);
+    let r = rays(w, f);
+    // A plane slanted at 60 degrees: continuous, nothing dropped.
+    let s = 60f32.to_radians();
+    let n = [s.sin(), 0.0, -s.cos()];
+    let (mut depth, normal, plane) = plane_maps(&r, n, 2.0);
+    let before = depth.clone();
+    drop_depth_edges(&mut depth, &normal, &plane, &r, w, w, f).unwrap();
+    assert_eq!(depth, before);
+    // A fronto-parallel plane at 2 with its right half at 3 (behind): the two columns
+    // along the step are dropped, every other pixel kept; empty pixels are not edges.
+    let (mut depth, normal, mut plane) = plane_maps(&r, [0.0, 0.0, -1.0], 2.0);
+    for y in 0..w {
+        for x in w / 2..w {
+            depth[y * w + x] = 3.0;
+            plane[y * w + x] = 3.0;
+        }
+        depth[y * w] = 0.0;
+    }
+    drop_depth_edges(&mut depth, &normal, &plane, &r, w, w, f).unwrap();
+    for y in 0..w {
+        for x in 0..w {
+            let d = depth[y * w + x];
+            let dropped = x == w / 2 - 1 || x == w / 2 || x == 0;
+            assert_eq!(d == 0.0, dropped, "pixel ({x}, {y}) depth {d}");
+        }
+    }
+    // Maps of the wrong size: an error naming the map, the depth untouched.
+    let before = depth.clone();
+    let err = drop_depth_edges(&mut depth, &normal[3..], &plane, &r, w, w, f).unwrap_err();
+    assert!(err.to_string().contains("normal map"), "{err}");
+    assert_eq!(depth, before);
 }

@@ -7,7 +7,7 @@ use anyhow::{Context, Result};
 use glam::Vec3;
 use gtsr_data::Scene;
 use gtsr_data::ply::{TriMesh, write_ply};
-use gtsr_eval::tsdf::{default_truncation, faces_ray, median_pixel_footprint};
+use gtsr_eval::tsdf::{default_truncation, drop_depth_edges, faces_ray, median_pixel_footprint};
 use gtsr_eval::{
     DepthComparison, DepthMetrics, ImageRef, MeshMetrics, MeshRaycaster, SEEN_MIN_EYES, Timeline,
     TsdfVolume, chamfer_seen_and_whole, largest_component, psnr, ssim,
@@ -202,62 +202,11 @@ pub fn extract_mesh(
         }
         let plane = host_vec(g.plane);
         let (w, h) = (data.camera.width as usize, data.camera.height as usize);
-        drop_depth_edges(&mut depth, &normal, &plane, &rays, w, h, data.camera.fx);
+        drop_depth_edges(&mut depth, &normal, &plane, &rays, w, h, data.camera.fx)
+            .with_context(|| format!("dropping the depth edges of {}", data.name))?;
         tsdf.integrate(&data.camera, &depth, free_space_votes.then_some(&mask[..]))?;
     }
     Ok(largest_component(&tsdf.extract_mesh()))
-}
-
-/// Depth discontinuities wider than this many pixel footprints are not fused.
-const EDGE_FOOTPRINTS: f32 = 2.0;
-
-/// Zeroes the depth of pixels on a depth edge: where a 4-neighbour's depth is off the
-/// pixel's own blended plane (intersected with the neighbour's ray) by more than
-/// [`EDGE_FOOTPRINTS`] pixel footprints. A pixel that straddles an occlusion boundary (one
-/// strand of a knot in front of another) blends two surfaces into a depth between them, well
-/// behind the front one, and would carve it; a slanted but continuous surface is predicted by
-/// its plane and stays. Neighbours without depth (the silhouette) are not edges.
-fn drop_depth_edges(
-    depth: &mut [f32],
-    normal: &[f32],
-    plane: &[f32],
-    rays: &[f32],
-    w: usize,
-    h: usize,
-    fx: f32,
-) {
-    let orig = depth.to_vec();
-    let at = |v: &[f32], p: usize| [v[3 * p], v[3 * p + 1], v[3 * p + 2]];
-    for y in 0..h {
-        for x in 0..w {
-            let p = y * w + x;
-            let d = orig[p];
-            if d <= 0.0 {
-                continue;
-            }
-            let n = at(normal, p);
-            let tol = EDGE_FOOTPRINTS * d / fx;
-            let neighbours = [
-                (x > 0).then(|| p - 1),
-                (x + 1 < w).then(|| p + 1),
-                (y > 0).then(|| p - w),
-                (y + 1 < h).then(|| p + w),
-            ];
-            let edge = neighbours.into_iter().flatten().any(|q| {
-                let dq = orig[q];
-                if dq <= 0.0 {
-                    return false;
-                }
-                let r = at(rays, q);
-                let ndr = -(n[0] * r[0] + n[1] * r[1] + n[2] * r[2]);
-                let predicted = plane[p] / ndr.max(1e-6);
-                !(predicted.is_finite() && (dq - predicted).abs() <= tol)
-            });
-            if edge {
-                depth[p] = 0.0;
-            }
-        }
-    }
 }
 
 /// Renders the test views (PSNR/SSIM of C_SH, and of C_PBR when present) and, with a
@@ -578,63 +527,4 @@ pub fn finish(
         );
     }
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Rays `((x + 0.5 - c) / f, (y + 0.5 - c) / f, 1)` of a `w x w` image.
-    fn rays(w: usize, f: f32) -> Vec<f32> {
-        let c = 0.5 * w as f32;
-        (0..w * w)
-            .flat_map(|p| {
-                let (x, y) = ((p % w) as f32, (p / w) as f32);
-                [(x + 0.5 - c) / f, (y + 0.5 - c) / f, 1.0]
-            })
-            .collect()
-    }
-
-    /// Depth, normal and plane maps of the plane `n . X = -plane` seen along `rays`.
-    fn plane_maps(rays: &[f32], n: [f32; 3], plane: f32) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
-        let k = rays.len() / 3;
-        let depth = (0..k)
-            .map(|p| {
-                let r = &rays[3 * p..3 * p + 3];
-                plane / -(n[0] * r[0] + n[1] * r[1] + n[2] * r[2])
-            })
-            .collect();
-        (depth, n.repeat(k), vec![plane; k])
-    }
-
-    #[test]
-    fn depth_edges_drop_occlusion_boundaries_and_keep_slanted_surfaces() {
-        let (w, f) = (16, 20.0);
-        let r = rays(w, f);
-        // A plane slanted at 60 degrees: continuous, nothing dropped.
-        let s = 60f32.to_radians();
-        let n = [s.sin(), 0.0, -s.cos()];
-        let (mut depth, normal, plane) = plane_maps(&r, n, 2.0);
-        let before = depth.clone();
-        drop_depth_edges(&mut depth, &normal, &plane, &r, w, w, f);
-        assert_eq!(depth, before);
-        // A fronto-parallel plane at 2 with its right half at 3 (behind): the two columns
-        // along the step are dropped, every other pixel kept; empty pixels are not edges.
-        let (mut depth, normal, mut plane) = plane_maps(&r, [0.0, 0.0, -1.0], 2.0);
-        for y in 0..w {
-            for x in w / 2..w {
-                depth[y * w + x] = 3.0;
-                plane[y * w + x] = 3.0;
-            }
-            depth[y * w] = 0.0;
-        }
-        drop_depth_edges(&mut depth, &normal, &plane, &r, w, w, f);
-        for y in 0..w {
-            for x in 0..w {
-                let d = depth[y * w + x];
-                let dropped = x == w / 2 - 1 || x == w / 2 || x == 0;
-                assert_eq!(d == 0.0, dropped, "pixel ({x}, {y}) depth {d}");
-            }
-        }
-    }
 }

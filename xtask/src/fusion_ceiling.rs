@@ -2,7 +2,7 @@
 //!
 //! The ground-truth mesh is ray cast through every training pixel (at the training
 //! resolution) and its depth maps go through the fusion gtsr-train uses (the same box, voxel,
-//! masks, silhouette carving, default truncation and grazing cut, all from
+//! masks, silhouette carving, default truncation, grazing cut and depth-edge cut, all from
 //! `gtsr_eval::tsdf`) at several truncations. The
 //! chamfer of those meshes is the best any rendered depth can give through this fusion at
 //! this resolution: when it does not beat the masks alone, no method can beat the visual hull
@@ -17,7 +17,8 @@ use clap::Args;
 use glam::Vec3;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_eval::tsdf::{
-    DEPTH_ONLY_TRUNCATION_FOOTPRINTS, default_truncation, faces_ray, median_pixel_footprint,
+    DEPTH_ONLY_TRUNCATION_FOOTPRINTS, default_truncation, drop_depth_edges, faces_ray,
+    median_pixel_footprint,
 };
 use gtsr_eval::{
     MeshRaycaster, SEEN_MIN_EYES, TsdfVolume, chamfer_seen_and_whole, default_voxel_for_radius,
@@ -52,6 +53,11 @@ pub struct FusionCeilingArgs {
     /// Leave out the masks-only and default-truncation fusions.
     #[arg(long)]
     pub no_default: bool,
+    /// Keep the depth edges gtsr-train drops (`gtsr_eval::tsdf::drop_depth_edges`): pixels
+    /// whose 4-neighbour leaves their plane by more than two footprints, which on rendered
+    /// depth blend two surfaces at an occlusion boundary.
+    #[arg(long)]
+    pub keep_edges: bool,
 }
 
 /// One fusion: the label, whether the masks carve, whether depth is fused, the truncation,
@@ -110,7 +116,8 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
         scene_dir.display()
     );
 
-    // The ground truth's depth per training view, masked and without grazing pixels.
+    // The ground truth's depth per training view, masked, without grazing pixels and without
+    // depth edges, as gtsr-train fuses rendered depth.
     let depths: Vec<Vec<f32>> = scene
         .train
         .iter()
@@ -118,16 +125,37 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
             let c = &v.camera;
             let md = caster.render(c);
             let mask = v.mask.as_deref().expect("checked above");
-            (0..md.depth.len())
+            let rays: Vec<Vec3> = (0..md.depth.len())
                 .map(|p| {
                     let (i, j) = ((p % md.width) as f32, (p / md.width) as f32);
-                    let ray = c.camera_direction(i + 0.5, j + 0.5).normalize();
-                    let keep = mask[p] >= 0.5 && md.depth[p] > 0.0 && faces_ray(md.normal[p], ray);
+                    c.camera_direction(i + 0.5, j + 0.5)
+                })
+                .collect();
+            let mut depth: Vec<f32> = (0..md.depth.len())
+                .map(|p| {
+                    let keep =
+                        mask[p] >= 0.5 && md.depth[p] > 0.0 && faces_ray(md.normal[p], rays[p]);
                     if keep { md.depth[p] } else { 0.0 }
                 })
-                .collect()
+                .collect();
+            let plane: Vec<f32> = (0..md.depth.len())
+                .map(|p| md.depth[p] * -md.normal[p].dot(rays[p]))
+                .collect();
+            let flat = |v: &[Vec3]| v.iter().flat_map(|x| x.to_array()).collect::<Vec<f32>>();
+            if !args.keep_edges {
+                drop_depth_edges(
+                    &mut depth,
+                    &flat(&md.normal),
+                    &plane,
+                    &flat(&rays),
+                    md.width,
+                    md.height,
+                    c.fx,
+                )?;
+            }
+            Ok(depth)
         })
-        .collect();
+        .collect::<Result<_>>()?;
 
     let mut variants = Vec::new();
     if !args.no_default {
