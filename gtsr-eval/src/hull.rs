@@ -137,43 +137,27 @@ pub fn hull_box(views: &[(Camera, &[f32])]) -> Result<Option<(Vec3, Vec3)>> {
         .map(|c| c.distance(mean))
         .fold(0.0f32, f32::max)
         .max(1e-3);
-    let mut grid = hull_grid(
+    let grid = hull_grid(
         views,
         mean - Vec3::splat(reach),
         mean + Vec3::splat(reach),
         HULL_BOX_RESOLUTION,
     )?;
+    let in_frustum = |cam: &Camera, p: Vec3| {
+        cam.project(p).is_some_and(|(uv, _)| {
+            uv.x >= 0.0 && uv.y >= 0.0 && uv.x < cam.width as f32 && uv.y < cam.height as f32
+        })
+    };
     let [nx, ny, nz] = grid.dims;
-    for k in 0..nz {
-        for j in 0..ny {
-            for i in 0..nx {
-                let id = grid.index(i, j, k);
-                if grid.values[id] < 0.0 {
-                    let p = grid.point(i, j, k);
-                    let seen = views
-                        .iter()
-                        .filter(|(cam, _)| {
-                            cam.project(p).is_some_and(|(uv, _)| {
-                                uv.x >= 0.0
-                                    && uv.y >= 0.0
-                                    && uv.x < cam.width as f32
-                                    && uv.y < cam.height as f32
-                            })
-                        })
-                        .count();
-                    if 2 * seen < views.len() {
-                        grid.values[id] = 0.5;
-                    }
-                }
-            }
-        }
-    }
     let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
     for k in 0..nz {
         for j in 0..ny {
             for i in 0..nx {
-                if grid.values[grid.index(i, j, k)] < 0.0 {
-                    let p = grid.point(i, j, k);
+                let p = grid.point(i, j, k);
+                let inside = grid.values[grid.index(i, j, k)] < 0.0
+                    && 2 * views.iter().filter(|(cam, _)| in_frustum(cam, p)).count()
+                        >= views.len();
+                if inside {
                     lo = lo.min(p);
                     hi = hi.max(p);
                 }

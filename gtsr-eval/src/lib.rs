@@ -26,7 +26,8 @@ pub use hull::visual_hull;
 pub use marching::{Grid, marching_cubes};
 pub use mesh::{largest_component, sample_surface, weld};
 pub use metrics::{
-    ImageRef, MeshMetrics, SEEN_MIN_EYES, chamfer, chamfer_seen, chamfer_seen_and_whole, psnr, ssim,
+    ImageRef, MeshMetrics, SCORE_SAMPLES, SEEN_MIN_EYES, chamfer, chamfer_seen,
+    chamfer_seen_and_whole, psnr, score_against_ground_truth, ssim,
 };
 pub use report::{ReportRow, markdown_table};
 pub use timeline::{Timeline, TimelinePoint, plot_png};

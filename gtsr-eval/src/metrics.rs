@@ -380,6 +380,32 @@ pub fn chamfer_seen_and_whole(
 /// surface were seen by five or more. Three eyes keep those out.
 pub const SEEN_MIN_EYES: usize = 3;
 
+/// Area-uniform samples per mesh in [`score_against_ground_truth`].
+pub const SCORE_SAMPLES: usize = 50_000;
+
+/// A reconstructed mesh against a scene's ground truth as gtsr-train, `cargo xtask
+/// bench-recon` and `cargo xtask fusion-ceiling` report it, `(seen, whole)`
+/// ([`chamfer_seen_and_whole`]): `eyes` the training cameras' centres, [`SEEN_MIN_EYES`] of
+/// them to keep a ground-truth sample, [`SCORE_SAMPLES`] samples per mesh with seed 0, and
+/// the F-score threshold 1 % of the ground truth's radius (half the longest side of its box).
+pub fn score_against_ground_truth(
+    pred: &TriMesh,
+    gt: &TriMesh,
+    eyes: &[Vec3],
+) -> Result<(MeshMetrics, MeshMetrics)> {
+    let (lo, hi) = gt.bounds();
+    let radius = 0.5 * (hi - lo).max_element();
+    chamfer_seen_and_whole(
+        pred,
+        gt,
+        eyes,
+        SEEN_MIN_EYES,
+        SCORE_SAMPLES,
+        0.01 * radius,
+        0,
+    )
+}
+
 /// A borrowed image: `width * height * channels` values, row-major, channels interleaved.
 #[derive(Clone, Copy, Debug)]
 pub struct ImageRef<'a> {

@@ -78,15 +78,8 @@ fn integrate_checks_sizes_and_new_checks_arguments() {
 fn visual_hull_of_a_sphere_contains_it_and_is_close() {
     let (centre, r) = (Vec3::new(0.0, 0.1, 0.0), 0.5);
     let cams = common::cameras_around(centre, 2.5, 60, 35f32.to_radians(), 200);
-    let renders: Vec<Vec<f32>> = cams
-        .iter()
-        .map(|c| common::render_sphere(c, centre, r).1)
-        .collect();
-    let views: Vec<_> = cams
-        .iter()
-        .zip(&renders)
-        .map(|(c, m)| (*c, m.as_slice()))
-        .collect();
+    let masks = common::sphere_masks(&cams, centre, r);
+    let views = common::as_views(&masks);
     let res = 96;
     let (lo, hi) = (centre - Vec3::splat(0.7), centre + Vec3::splat(0.7));
     let hull = visual_hull(&views, lo, hi, res).unwrap();
@@ -104,7 +97,7 @@ fn visual_hull_of_a_sphere_contains_it_and_is_close() {
     // Binary masks carve to within a fraction of a voxel (measured 0.0014, 0.1 voxel).
     assert!(cd.chamfer < 0.25 * voxel as f64, "{cd:?}");
     // A view whose mask is empty carves everything.
-    let empty = vec![0.0; renders[0].len()];
+    let empty = vec![0.0; masks[0].1.len()];
     let mut with_empty = views.clone();
     with_empty.push((cams[0], &empty));
     assert!(
@@ -128,15 +121,8 @@ fn hull_box_holds_the_object_and_little_more() {
     // only by those, and a small object in narrow frusta leaves such points inside the hull.
     let (centre, r) = (Vec3::new(0.3, -0.2, 0.1), 0.8);
     let cams = common::cameras_around(centre, 3.0, 40, 50f32.to_radians(), 96);
-    let masks: Vec<Vec<f32>> = cams
-        .iter()
-        .map(|c| common::render_sphere(c, centre, r).1)
-        .collect();
-    let views: Vec<_> = cams
-        .iter()
-        .zip(&masks)
-        .map(|(c, m)| (*c, m.as_slice()))
-        .collect();
+    let masks = common::sphere_masks(&cams, centre, r);
+    let views = common::as_views(&masks);
     let (lo, hi) = gtsr_eval::hull::hull_box(&views).unwrap().unwrap();
     // The carving voxel: the cameras' cube (side 2 * 3.0 around their mean, which is near the
     // sphere's centre) over HULL_BOX_RESOLUTION.
@@ -155,7 +141,7 @@ fn hull_box_holds_the_object_and_little_more() {
         );
     }
     // An empty mask leaves nothing inside every mask; no views is an error.
-    let empty = vec![0.0; masks[0].len()];
+    let empty = vec![0.0; masks[0].1.len()];
     let mut with_empty = views.clone();
     with_empty.push((cams[0], &empty));
     assert!(gtsr_eval::hull::hull_box(&with_empty).unwrap().is_none());
@@ -201,11 +187,8 @@ fn silhouette_carving_keeps_the_surface_inside_every_mask() {
     // the masks' hull.
     let carved = fuse(0.5, 0.4, true);
     assert!(!carved.triangles.is_empty());
-    let masks: Vec<_> = cams
-        .iter()
-        .map(|c| (*c, common::render_sphere(c, Vec3::ZERO, 0.4).1))
-        .collect();
-    let views: Vec<_> = masks.iter().map(|(c, m)| (*c, m.as_slice())).collect();
+    let masks = common::sphere_masks(&cams, Vec3::ZERO, 0.4);
+    let views = common::as_views(&masks);
     let hull = visual_hull(&views, Vec3::splat(-0.7), Vec3::splat(0.7), 140).unwrap();
     let (r_carved, r_hull, r_plain) = (
         max_radius(&carved),

@@ -9,8 +9,8 @@ use gtsr_data::Scene;
 use gtsr_data::ply::{TriMesh, write_ply};
 use gtsr_eval::tsdf::{default_truncation, drop_depth_edges, faces_ray, median_pixel_footprint};
 use gtsr_eval::{
-    DepthComparison, DepthMetrics, ImageRef, MeshMetrics, MeshRaycaster, SEEN_MIN_EYES, Timeline,
-    TsdfVolume, chamfer_seen_and_whole, largest_component, psnr, ssim,
+    DepthComparison, DepthMetrics, ImageRef, MeshMetrics, MeshRaycaster, Timeline, TsdfVolume,
+    largest_component, psnr, score_against_ground_truth, ssim,
 };
 use gtsr_model::checkpoint::write_atomic;
 use gtsr_model::export::write_splat_ply;
@@ -250,13 +250,8 @@ pub fn evaluate(
             if m.triangles.is_empty() {
                 (None, None, Some(m))
             } else {
-                let radius = 0.5 * {
-                    let (a, b) = gt.bounds();
-                    (b - a).max_element()
-                };
                 let eyes: Vec<Vec3> = scene.train.iter().map(|v| v.camera.centre()).collect();
-                let (seen, whole) =
-                    chamfer_seen_and_whole(&m, gt, &eyes, SEEN_MIN_EYES, 50_000, 0.01 * radius, 0)?;
+                let (seen, whole) = score_against_ground_truth(&m, gt, &eyes)?;
                 // The whole-ground-truth number is reported only at the end (`finish`).
                 (Some(seen), (!coarse).then_some(whole), Some(m))
             }

@@ -11,8 +11,7 @@ use clap::Args;
 use gtsr_data::ply::TriMesh;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_eval::{
-    ReportRow, SEEN_MIN_EYES, Timeline, chamfer_seen_and_whole, markdown_table, plot_png,
-    visual_hull,
+    ReportRow, Timeline, markdown_table, plot_png, score_against_ground_truth, visual_hull,
 };
 
 /// Options of `bench-recon`.
@@ -112,10 +111,8 @@ fn hull_row(
     let (lo, hi) = gt.bounds();
     let pad = 0.15 * (hi - lo).max_element();
     let hull = visual_hull(&views, lo - pad, hi + pad, hull_res)?;
-    let radius = 0.5 * (hi - lo).max_element();
     let eyes: Vec<_> = scene.train.iter().map(|v| v.camera.centre()).collect();
-    let (m, whole) =
-        chamfer_seen_and_whole(&hull, &gt, &eyes, SEEN_MIN_EYES, 50_000, 0.01 * radius, 0)?;
+    let (m, whole) = score_against_ground_truth(&hull, &gt, &eyes)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     gtsr_data::ply::write_ply(&out.join("mesh.ply"), &hull)?;
     Ok(ReportRow {

@@ -21,8 +21,8 @@ use gtsr_eval::tsdf::{
     median_pixel_footprint,
 };
 use gtsr_eval::{
-    MeshRaycaster, SEEN_MIN_EYES, TsdfVolume, chamfer_seen_and_whole, default_voxel_for_radius,
-    largest_component,
+    MeshRaycaster, TsdfVolume, default_voxel_for_radius, largest_component,
+    score_against_ground_truth,
 };
 
 use crate::bench_recon::{ground_truth, scene_name};
@@ -214,8 +214,6 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
     }
 
     let eyes: Vec<Vec3> = scene.train.iter().map(|v| v.camera.centre()).collect();
-    let (gl, gh) = gt.bounds();
-    let threshold = 0.01 * 0.5 * (gh - gl).max_element();
     let dir = args.out.join(name);
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let mut rows = Vec::new();
@@ -244,8 +242,7 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
         if mesh.triangles.is_empty() {
             bail!("{name}: {}: empty mesh", var.label);
         }
-        let (seen, whole) =
-            chamfer_seen_and_whole(&mesh, &gt, &eyes, SEEN_MIN_EYES, 50_000, threshold, 0)?;
+        let (seen, whole) = score_against_ground_truth(&mesh, &gt, &eyes)?;
         let secs = t0.elapsed().as_secs_f64();
         println!(
             "  {}: chamfer x1e3 {:.2} (whole GT {:.2}), F-score {:.3}, {secs:.0} s",

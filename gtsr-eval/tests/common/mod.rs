@@ -43,3 +43,15 @@ pub fn render_sphere(cam: &Camera, centre: Vec3, radius: f32) -> (Vec<f32>, Vec<
     }
     (depth, mask)
 }
+
+/// Each camera with the mask of a sphere ([`render_sphere`]).
+pub fn sphere_masks(cams: &[Camera], centre: Vec3, radius: f32) -> Vec<(Camera, Vec<f32>)> {
+    cams.iter()
+        .map(|c| (*c, render_sphere(c, centre, radius).1))
+        .collect()
+}
+
+/// `(camera, mask)` pairs borrowed as the hull functions take them.
+pub fn as_views(masks: &[(Camera, Vec<f32>)]) -> Vec<(Camera, &[f32])> {
+    masks.iter().map(|(c, m)| (*c, m.as_slice())).collect()
+}

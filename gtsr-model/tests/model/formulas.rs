@@ -2,7 +2,7 @@
 
 use burn::tensor::{Device, Tensor, TensorData};
 use gtsr_model::config::Components;
-use gtsr_model::gaussians::{HostSet, ParamKind, SetKind, layout, logit};
+use gtsr_model::gaussians::{HostSet, ParamKind, SetKind, host_vec, layout, logit};
 use gtsr_model::geometry::pixel_rays;
 use gtsr_model::losses;
 use gtsr_model::model::{Model, RenderOptions};
@@ -188,7 +188,7 @@ fn c_sh_matches_direct_evaluation() {
         blur_px2: model.blur_px2,
     };
     let direct = render_reference(&g, &cfg);
-    let got: Vec<f32> = r.c_sh.into_data().convert::<f32>().into_vec().unwrap();
+    let got = host_vec(r.c_sh);
     let mut worst: f64 = 0.0;
     for p in 0..(40 * 32) {
         for c in 0..3 {
@@ -228,8 +228,8 @@ fn unbiased_depth_is_the_ray_plane_intersection() {
         &device,
     );
     let g = model.render_depth(&cam, &rays).unwrap();
-    let depth: Vec<f32> = g.depth.into_data().convert::<f32>().into_vec().unwrap();
-    let cov: Vec<f32> = g.coverage.into_data().convert::<f32>().into_vec().unwrap();
+    let depth = host_vec(g.depth);
+    let cov = host_vec(g.coverage);
     // Plane in camera space: normal = R * (third rotation column), point = R mean + t.
     let r = quat_matrix(&q);
     let nw = [r[0][2], r[1][2], r[2][2]];
@@ -363,12 +363,7 @@ fn layer_spread_is_the_weighted_variance_of_the_ray_crossing_depths() {
         let r = model.render(&cam, &rays, opts).unwrap();
         let g = r.geometry.expect("geometry maps");
         let spread = g.spread.clone().expect("asked for the spread");
-        let v: Vec<f32> = spread
-            .clone()
-            .into_data()
-            .convert::<f32>()
-            .into_vec()
-            .unwrap();
+        let v = host_vec(spread.clone());
         for (p, x) in v.iter().enumerate() {
             assert!(
                 (f64::from(*x) - want).abs() < 1e-3 * want + 1e-9,
@@ -378,14 +373,7 @@ fn layer_spread_is_the_weighted_variance_of_the_ray_crossing_depths() {
         // The loss: the depth spread z^2 sqrt(var) in pixel footprints z / f, softened by e.
         let valid = g.coverage.clone().detach().greater_elem(0.1);
         let loss = losses::layer_spread(&spread, &g.depth, cam.fx, &valid);
-        let z = f64::from(
-            g.depth
-                .clone()
-                .into_data()
-                .convert::<f32>()
-                .into_vec::<f32>()
-                .unwrap()[centre],
-        );
+        let z = f64::from(host_vec(g.depth.clone())[centre]);
         let e = losses::regular::LAYER_SPREAD_EPS_PX;
         let px = want.sqrt() * z * cam.fx;
         let expect = (px * px + e * e).sqrt() - e;
@@ -398,7 +386,7 @@ fn layer_spread_is_the_weighted_variance_of_the_ray_crossing_depths() {
         let grads = loss.backward();
         for k in [ParamKind::Means, ParamKind::Opacity] {
             let gr = model.surface.req(k).grad(&grads).expect("a gradient");
-            let gv: Vec<f32> = gr.into_data().convert::<f32>().into_vec().unwrap();
+            let gv = host_vec(gr);
             assert!(gv.iter().all(|x| x.is_finite()), "{k:?}: {gv:?}");
             if zs.len() == 2 && want > 0.0 && k == ParamKind::Means {
                 // Pulling the layers together lowers the loss: the front one moves back (+z),
@@ -416,13 +404,7 @@ fn layer_spread_is_the_weighted_variance_of_the_ray_crossing_depths() {
     let (model, cam) = disc_model(&[(in_plane(-h), q), (in_plane(h), q)], &device);
     let rays = pixel_rays(&cam, &device);
     let g = model.render(&cam, &rays, opts).unwrap().geometry.unwrap();
-    let v: Vec<f32> = g
-        .spread
-        .unwrap()
-        .into_data()
-        .convert::<f32>()
-        .into_vec()
-        .unwrap();
+    let v = host_vec(g.spread.unwrap());
     let worst = v.iter().fold(0.0f32, |m, x| m.max(*x));
     // Centre depths 4 -/+ 0.3 sin(0.6) with these weights would give (2/9)(1/z1 - 1/z2)^2 = 1e-4.
     assert!(worst < 1e-8, "one tilted plane: spread up to {worst}");
@@ -502,13 +484,7 @@ fn pbr_matches_per_pixel_evaluation_and_stays_finite_at_extremes() {
     let light =
         Tensor::<2>::from_data(TensorData::new(vec![12.0f32], [1, 1]), &device).require_grad();
     let out = pbr::shade(&gb, light.clone(), SHADING);
-    let got: Vec<f32> = out
-        .colour
-        .clone()
-        .into_data()
-        .convert::<f32>()
-        .into_vec()
-        .unwrap();
+    let got = host_vec(out.colour.clone());
     for p in 0..h * w {
         let f = |v: &Vec<f32>, k: usize| f64::from(v[3 * p + k]);
         let want = pbr::shade_pixel(
@@ -555,7 +531,7 @@ fn pbr_matches_per_pixel_evaluation_and_stays_finite_at_extremes() {
         ("coverage", gb.coverage.grad(&grads)),
         ("roughness", gb.roughness.grad(&grads)),
     ] {
-        let v: Vec<f32> = g.unwrap().into_data().convert::<f32>().into_vec().unwrap();
+        let v = host_vec(g.unwrap());
         assert!(
             v.iter().all(|x| x.is_finite()),
             "{name} gradient not finite: {v:?}"
@@ -572,11 +548,7 @@ fn schlick_and_srgb_endpoints() {
         TensorData::new(vec![0.0f32, 1.0, 0.5, -0.2, 1.5], [5]),
         &device,
     );
-    let f: Vec<f32> = pbr::schlick(c, 0.04)
-        .into_data()
-        .convert::<f32>()
-        .into_vec()
-        .unwrap();
+    let f = host_vec(pbr::schlick(c, 0.04));
     assert!((f[0] - 1.0).abs() < 1e-6 && (f[1] - 0.04).abs() < 1e-6);
     assert!((f[2] - (0.04 + 0.96 / 32.0)).abs() < 1e-6);
     assert!(
@@ -587,11 +559,7 @@ fn schlick_and_srgb_endpoints() {
         TensorData::new(vec![0.0f32, 0.001, 0.18, 1.0, 2.0], [5]),
         &device,
     );
-    let s: Vec<f32> = pbr::linear_to_srgb(x)
-        .into_data()
-        .convert::<f32>()
-        .into_vec()
-        .unwrap();
+    let s = host_vec(pbr::linear_to_srgb(x));
     assert!((s[0]).abs() < 1e-7 && (s[1] - 0.01292).abs() < 1e-6);
     assert!((s[2] - 0.461_356).abs() < 1e-4, "{}", s[2]);
     assert!((s[3] - 1.0).abs() < 1e-6 && (s[4] - 1.0).abs() < 1e-6);
@@ -613,11 +581,12 @@ fn sh_colours_match_the_host_basis() {
     let rest: Vec<f32> = (0..n * 45).map(|_| rng.random_range(-0.5..0.5)).collect();
     let t = |v: &Vec<f32>, w| Tensor::<2>::from_data(TensorData::new(v.clone(), [n, w]), &device);
     for degree in 0..=3u32 {
-        let got: Vec<f32> = sh::colours(&t(&dc, 3), Some(&t(&rest, 45)), &t(&dirs, 3), degree)
-            .into_data()
-            .convert::<f32>()
-            .into_vec()
-            .unwrap();
+        let got = host_vec(sh::colours(
+            &t(&dc, 3),
+            Some(&t(&rest, 45)),
+            &t(&dirs, 3),
+            degree,
+        ));
         for i in 0..n {
             let b = sh::basis_host(std::array::from_fn(|k| f64::from(dirs[3 * i + k])), degree);
             for c in 0..3 {
