@@ -473,6 +473,56 @@ impl Model {
     }
 }
 
+impl Model {
+    /// Like [`Model::render_depth`], but each pixel takes the normal, plane and depth of the one
+    /// surface splat at which the pixel's transmittance first falls to `threshold` (0.5: the
+    /// median splat, as 2DGS's median depth) instead of their blend over every layer the ray
+    /// crosses; `coverage` is 1 where the transmittance crossed it and 0 elsewhere. Not
+    /// differentiable; runs the host kernels ([`gtsr_render_kernels::render_crossing`]). For
+    /// mesh extraction.
+    pub fn render_depth_crossing(
+        &self,
+        camera: &Camera,
+        rays: &Tensor<3>,
+        threshold: f64,
+    ) -> Result<GeometryMaps, ModelError> {
+        let surf = self.prepare(&self.surface, camera, true, false);
+        let feats = self.geometry_features(&surf, camera, false, false);
+        let cfg = SplatConfig {
+            camera: camera.clone(),
+            background: vec![0.0; feats.dims()[1]],
+            cutoff: AlphaCutoff::Hard,
+            blur_px2: self.blur_px2,
+        };
+        let out = gtsr_render_kernels::render_crossing(
+            SplatInputs {
+                means: surf.means,
+                quats: surf.quats,
+                scales: surf.scales,
+                opacities: surf.opacities,
+                features: feats,
+                xy_offsets: None,
+            },
+            &cfg,
+            threshold,
+        )?;
+        let [h, w, _] = rays.dims();
+        let normal = out.features.clone().slice([0..h, 0..w, 0..3]);
+        let plane = out.features.slice([0..h, 0..w, 3..4]).reshape([h, w]);
+        let depth = unbiased_depth(&normal, &plane, rays);
+        Ok(GeometryMaps {
+            normal,
+            plane,
+            coverage: out.found,
+            depth,
+            base: None,
+            roughness: None,
+            spread: None,
+            tile_splats: 0,
+        })
+    }
+}
+
 /// Feature channels the spread adds to the geometry pass (the plane moments of
 /// [`GeometryMaps::spread`]).
 pub const SPREAD_CHANNELS: usize = 9;

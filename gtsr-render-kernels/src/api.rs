@@ -1,7 +1,7 @@
 //! The public entry point: [`render`] on Burn tensors.
 
 use burn::backend::Dispatch;
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{Device, Tensor, TensorData};
 use thiserror::Error;
 
 use crate::backend::{SplatBackend, supported_dtype};
@@ -101,6 +101,9 @@ pub enum RenderError {
         "no splatting kernels for device {0:?}: supported are NdArray and, with the `wgpu` feature of gtsr-render-kernels, wgpu (with or without autodiff)"
     )]
     UnsupportedDevice(Device),
+    /// The transmittance threshold of [`render_crossing`] is not in `(0, 1)`.
+    #[error("crossing threshold must be in (0, 1), got {0}")]
+    Threshold(f64),
     /// Only f32 and f64 are supported.
     #[error(
         "unsupported float dtype {0:?} on this device: NdArray takes f32 or f64, wgpu takes f32"
@@ -145,33 +148,8 @@ fn check_shape(
     Ok(())
 }
 
-/// Splats `inputs` into the camera of `config`.
-///
-/// Projection (EWA, `config.blur_px2` screen-space blur, Jacobian clamp, near/far and
-/// non-finite culling), depth sort and 16x16 tile binning, and front-to-back blending follow
-/// the 3DGS conventions; see the crate docs. On an autodiff device the image and alpha are differentiable with respect to
-/// every input tensor.
-///
-/// ```
-/// use burn::tensor::{Device, Tensor};
-/// use gtsr_render_kernels::{Camera, SplatConfig, SplatInputs, render};
-///
-/// let device = Device::ndarray();
-/// let camera = Camera::look_at([0.0, 0.0, -4.0], [0.0; 3], [0.0, -1.0, 0.0], 0.69, 64, 64)?;
-/// let inputs = SplatInputs {
-///     means: Tensor::from_floats([[0.0, 0.0, 0.0]], &device),
-///     quats: Tensor::from_floats([[1.0, 0.0, 0.0, 0.0]], &device),
-///     scales: Tensor::from_floats([[0.2, 0.2, 0.2]], &device),
-///     opacities: Tensor::from_floats([0.8], &device),
-///     features: Tensor::from_floats([[1.0, 0.5, 0.0]], &device),
-///     xy_offsets: None,
-/// };
-/// let config = SplatConfig::new(camera, 3);
-/// let out = render(inputs, &config)?;
-/// assert_eq!(out.image.dims(), [64, 64, 3]);
-/// # Ok::<(), Box<dyn std::error::Error>>(())
-/// ```
-pub fn render(inputs: SplatInputs, config: &SplatConfig) -> Result<RenderOutput, RenderError> {
+/// Checks shapes, devices, dtypes and settings; returns the offsets (zeros when absent).
+fn validate(inputs: &SplatInputs, config: &SplatConfig) -> Result<Tensor<2>, RenderError> {
     let n = inputs.means.dims()[0];
     check_shape("means", &inputs.means.dims(), &[n, 3], "[N, 3]")?;
     check_shape("quats", &inputs.quats.dims(), &[n, 4], "[N, 4]")?;
@@ -205,10 +183,10 @@ pub fn render(inputs: SplatInputs, config: &SplatConfig) -> Result<RenderOutput,
     if !dtype_supported_on(&device, dtype) {
         return Err(RenderError::UnsupportedDType(dtype));
     }
-    let xy_offsets = match inputs.xy_offsets {
+    let xy_offsets = match &inputs.xy_offsets {
         Some(t) => {
             check_shape("xy_offsets", &t.dims(), &[n, 2], "[N, 2]")?;
-            t
+            t.clone()
         }
         None => Tensor::zeros([n, 2], (&device, dtype)),
     };
@@ -226,6 +204,38 @@ pub fn render(inputs: SplatInputs, config: &SplatConfig) -> Result<RenderOutput,
             )));
         }
     }
+    Ok(xy_offsets)
+}
+
+/// Splats `inputs` into the camera of `config`.
+///
+/// Projection (EWA, `config.blur_px2` screen-space blur, Jacobian clamp, near/far and
+/// non-finite culling), depth sort and 16x16 tile binning, and front-to-back blending follow
+/// the 3DGS conventions; see the crate docs. On an autodiff device the image and alpha are differentiable with respect to
+/// every input tensor.
+///
+/// ```
+/// use burn::tensor::{Device, Tensor, TensorData};
+/// use gtsr_render_kernels::{Camera, SplatConfig, SplatInputs, render};
+///
+/// let device = Device::ndarray();
+/// let camera = Camera::look_at([0.0, 0.0, -4.0], [0.0; 3], [0.0, -1.0, 0.0], 0.69, 64, 64)?;
+/// let inputs = SplatInputs {
+///     means: Tensor::from_floats([[0.0, 0.0, 0.0]], &device),
+///     quats: Tensor::from_floats([[1.0, 0.0, 0.0, 0.0]], &device),
+///     scales: Tensor::from_floats([[0.2, 0.2, 0.2]], &device),
+///     opacities: Tensor::from_floats([0.8], &device),
+///     features: Tensor::from_floats([[1.0, 0.5, 0.0]], &device),
+///     xy_offsets: None,
+/// };
+/// let config = SplatConfig::new(camera, 3);
+/// let out = render(inputs, &config)?;
+/// assert_eq!(out.image.dims(), [64, 64, 3]);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn render(inputs: SplatInputs, config: &SplatConfig) -> Result<RenderOutput, RenderError> {
+    let xy_offsets = validate(&inputs, config)?;
+    let c = inputs.features.dims()[1];
     let (h, w) = (config.camera.height as usize, config.camera.width as usize);
     let (out, aux) = <Dispatch as SplatBackend>::splat(
         inputs.means.into_dispatch(),
@@ -241,4 +251,107 @@ pub fn render(inputs: SplatInputs, config: &SplatConfig) -> Result<RenderOutput,
     let image = out.clone().slice([0..h, 0..w, 0..c]);
     let alpha = out.slice([0..h, 0..w, c..c + 1]).reshape([h, w]);
     Ok(RenderOutput { image, alpha, aux })
+}
+
+/// The result of [`render_crossing`] (not differentiable).
+#[derive(Clone, Debug)]
+pub struct CrossingOutput {
+    /// `[H, W, C]`: per pixel the features of the one splat whose blend took the pixel's
+    /// transmittance to or below the threshold; 0 where it stayed above.
+    pub features: Tensor<3>,
+    /// `[H, W]`: 1 where the transmittance crossed the threshold, else 0.
+    pub found: Tensor<2>,
+    /// `[H, W]`: accumulated alpha `1 - T_final` of the same render (as [`RenderOutput::alpha`]).
+    pub alpha: Tensor<2>,
+}
+
+/// Forward only, not differentiable: per pixel, the features of the splat at which the
+/// front-to-back transmittance first falls to or below `threshold` (in `(0, 1)`), instead of
+/// their blend. At 0.5 this is the "median" splat behind 2DGS's median depth: with per-splat
+/// plane features, one splat's ray-plane depth, where the blend averages every layer the ray
+/// crosses. Same projection, sort and blending as [`render`]; the result is on the inputs'
+/// device and dtype.
+///
+/// The kernels run on the host ([`crate::cpu::crossing_features`], f64 for f64 inputs, else
+/// f32): on wgpu the inputs are read back first. Meant for one-off passes such as mesh
+/// extraction, not for a training loop.
+///
+/// ```
+/// use burn::tensor::{Device, Tensor, TensorData};
+/// use gtsr_render_kernels::{Camera, SplatConfig, SplatInputs, render_crossing};
+///
+/// let device = Device::ndarray();
+/// let camera = Camera::look_at([0.0, 0.0, -4.0], [0.0; 3], [0.0, -1.0, 0.0], 0.69, 64, 64)?;
+/// // Two opaque discs, the front one at depth 3.5 (feature 3.5), the back one at 4.5.
+/// let inputs = SplatInputs {
+///     means: Tensor::from_floats([[0.0, 0.0, -0.5], [0.0, 0.0, 0.5]], &device),
+///     quats: Tensor::from_floats([[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]], &device),
+///     scales: Tensor::from_floats([[0.5, 0.5, 1e-3], [0.5, 0.5, 1e-3]], &device),
+///     opacities: Tensor::from_floats([0.9, 0.9], &device),
+///     features: Tensor::from_floats([[3.5], [4.5]], &device),
+///     xy_offsets: None,
+/// };
+/// let out = render_crossing(inputs, &SplatConfig::new(camera, 1), 0.5)?;
+/// let centre: f32 = out.features.slice([32..33, 32..33, 0..1]).into_scalar();
+/// assert!((centre - 3.5).abs() < 1e-6);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn render_crossing(
+    inputs: SplatInputs,
+    config: &SplatConfig,
+    threshold: f64,
+) -> Result<CrossingOutput, RenderError> {
+    if !(threshold > 0.0 && threshold < 1.0) {
+        return Err(RenderError::Threshold(threshold));
+    }
+    let xy_offsets = validate(&inputs, config)?;
+    let device = inputs.means.device();
+    let dtype = inputs.means.dtype();
+    if dtype == burn::tensor::DType::F64 {
+        crossing_on_host::<f64>(inputs, xy_offsets, config, threshold, &device)
+    } else {
+        crossing_on_host::<f32>(inputs, xy_offsets, config, threshold, &device)
+    }
+}
+
+fn crossing_on_host<F: crate::scalar::Real + burn::tensor::Element>(
+    inputs: SplatInputs,
+    xy_offsets: Tensor<2>,
+    config: &SplatConfig,
+    threshold: f64,
+    device: &Device,
+) -> Result<CrossingOutput, RenderError> {
+    fn host<F: burn::tensor::Element, const D: usize>(
+        name: &str,
+        t: Tensor<D>,
+    ) -> Result<Vec<F>, RenderError> {
+        t.into_data()
+            .convert::<F>()
+            .into_vec::<F>()
+            .map_err(|e| RenderError::Mixed(format!("reading {name} back: {e:?}")))
+    }
+    let means = host::<F, 2>("means", inputs.means)?;
+    let quats = host::<F, 2>("quats", inputs.quats)?;
+    let scales = host::<F, 2>("scales", inputs.scales)?;
+    let opacities = host::<F, 1>("opacities", inputs.opacities)?;
+    let features = host::<F, 2>("features", inputs.features)?;
+    let offsets = host::<F, 2>("xy_offsets", xy_offsets)?;
+    let g = crate::cpu::HostGaussians {
+        means: &means,
+        quats: &quats,
+        scales: &scales,
+        opacities: &opacities,
+        features: &features,
+        xy_offsets: &offsets,
+    };
+    let out = crate::cpu::crossing_features(&g, config, threshold);
+    let (h, w) = (config.camera.height as usize, config.camera.width as usize);
+    let c = config.background.len();
+    let dtype = F::dtype();
+    let alpha: Vec<F> = out.image.chunks_exact(c + 1).map(|px| px[c]).collect();
+    Ok(CrossingOutput {
+        features: Tensor::from_data(TensorData::new(out.features, [h, w, c]), (device, dtype)),
+        found: Tensor::from_data(TensorData::new(out.found, [h, w]), (device, dtype)),
+        alpha: Tensor::from_data(TensorData::new(alpha, [h, w]), (device, dtype)),
+    })
 }

@@ -10,6 +10,8 @@
 //! - the backend is chosen by the device: NdArray (f32 or f64, parallel over tiles with rayon),
 //!   or, with the `wgpu` feature, Burn's wgpu backend (f32; CubeCL kernels in [`gpu`], run
 //!   through `Fusion`);
+//! - [`render_crossing`] (forward only, on the host) gives per pixel the features of the splat
+//!   at which the transmittance falls to a threshold instead of their blend (median depth);
 //! - [`reference`] is an independent brute-force renderer (every pixel against every Gaussian)
 //!   used to check the kernels.
 //!
@@ -41,7 +43,10 @@ pub mod gpu;
 pub mod reference;
 pub mod scalar;
 
-pub use api::{RenderError, RenderOutput, SplatInputs, device_supported, render};
+pub use api::{
+    CrossingOutput, RenderError, RenderOutput, SplatInputs, device_supported, render,
+    render_crossing,
+};
 pub use camera::{Camera, CameraError};
 pub use config::{AlphaCutoff, BLUR_PX2, PIXEL_BOX_BLUR_PX2, SplatConfig, TILE_PIXELS, TILE_SIZE};
 pub mod scenes;

@@ -169,3 +169,52 @@ pub fn render_reference(g: &HostGaussians<'_, f64>, cfg: &SplatConfig) -> Vec<f6
     let _ = h;
     out
 }
+
+/// Brute-force counterpart of [`crate::cpu::crossing_features`]: per pixel, the features of the
+/// Gaussian whose blend takes the transmittance to or below `threshold` (row-major `[H, W, C]`,
+/// 0 where it stays above) and the `[H, W]` 0/1 map of where it does.
+pub fn crossing_reference(
+    g: &HostGaussians<'_, f64>,
+    cfg: &SplatConfig,
+    threshold: f64,
+) -> (Vec<f64>, Vec<f64>) {
+    let c = cfg.background.len();
+    let mut list: Vec<Projected> = (0..g.len()).filter_map(|i| project(g, i, cfg)).collect();
+    list.sort_by(|a, b| a.depth.total_cmp(&b.depth).then(a.index.cmp(&b.index)));
+    let (w, h) = (cfg.camera.width as usize, cfg.camera.height as usize);
+    let mut feats = vec![0.0; w * h * c];
+    let mut found = vec![0.0; w * h];
+    feats
+        .par_chunks_mut(c)
+        .zip(found.par_iter_mut())
+        .enumerate()
+        .for_each(|(pix, (px, hit))| {
+            let x = (pix % w) as f64 + 0.5;
+            let y = (pix / w) as f64 + 0.5;
+            let mut t = 1.0;
+            for s in &list {
+                let d = [x - s.mean[0], y - s.mean[1]];
+                let q = d[0] * (s.inv[0][0] * d[0] + s.inv[0][1] * d[1])
+                    + d[1] * (s.inv[1][0] * d[0] + s.inv[1][1] * d[1]);
+                let mut alpha = (s.opacity * (-0.5 * q).exp()).min(ALPHA_MAX);
+                if alpha < ALPHA_MIN {
+                    continue;
+                }
+                if cfg.cutoff == AlphaCutoff::Smooth {
+                    let u = ((alpha - ALPHA_MIN) / ALPHA_MIN).min(1.0);
+                    alpha *= u * u * (3.0 - 2.0 * u);
+                }
+                let next = t * (1.0 - alpha);
+                if next < TRANSMITTANCE_MIN {
+                    break;
+                }
+                if next <= threshold {
+                    px.copy_from_slice(&g.features[s.index * c..(s.index + 1) * c]);
+                    *hit = 1.0;
+                    break;
+                }
+                t = next;
+            }
+        });
+    (feats, found)
+}

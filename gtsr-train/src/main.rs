@@ -97,6 +97,11 @@ pub struct Args {
     /// baseline that says what the rendered depth adds to the mesh.
     #[arg(long, conflicts_with = "no_silhouette_carving")]
     pub silhouettes_only: bool,
+    /// Fuse, per pixel, the depth of the one surface splat at which the transmittance falls to
+    /// this value (0.5: the median depth of 2DGS), instead of the blended unbiased depth of
+    /// PGSR; the test-view depth metrics then measure this depth. In (0, 1).
+    #[arg(long)]
+    pub depth_crossing: Option<f64>,
     /// Save a checkpoint every this many steps (0: only at the end or on Ctrl-C).
     #[arg(long, default_value_t = 500)]
     pub checkpoint_every: usize,

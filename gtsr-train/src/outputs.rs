@@ -35,6 +35,10 @@ pub struct MeshSettings {
     pub silhouette_carving: bool,
     /// Fuse the rendered depth (false: silhouettes alone, the hull on the fusion grid).
     pub fuse_depth: bool,
+    /// Fuse, per pixel, the depth of the surface splat at which the transmittance falls to
+    /// this value ([`Model::render_depth_crossing`]; 0.5: the median depth) instead of the
+    /// blended unbiased depth. The test-view depth metrics then measure this depth too.
+    pub depth_crossing: Option<f64>,
     /// The mesh box from the masks ([`hull_bounds`], computed once per run); `None`: from the
     /// surface Gaussians at each extraction.
     pub bounds: Option<(Vec3, Vec3)>,
@@ -111,6 +115,20 @@ pub fn hull_bounds(views: &[gtsr_data::View]) -> Result<Option<(Vec3, Vec3)>> {
     Ok(gtsr_eval::hull::hull_box(&masked)?)
 }
 
+/// The surface geometry whose depth is fused and measured: the blended maps, or with
+/// [`MeshSettings::depth_crossing`] those of the crossing splat.
+fn fusion_geometry(
+    model: &Model,
+    camera: &gtsr_render_kernels::Camera,
+    rays: &burn::tensor::Tensor<3>,
+    settings: &MeshSettings,
+) -> Result<gtsr_model::model::GeometryMaps> {
+    Ok(match settings.depth_crossing {
+        Some(t) => model.render_depth_crossing(camera, rays, t)?,
+        None => model.render_depth(camera, rays)?,
+    })
+}
+
 /// TSDF fusion of the unbiased depth of every training view (depth kept where the mask, or
 /// without masks the surface coverage, is at least 0.5), marching cubes, largest component.
 pub fn extract_mesh(
@@ -167,14 +185,17 @@ pub fn extract_mesh(
         let (g, rays) = if settings.fusion_views.is_empty() {
             let v = &trainer.views[k];
             (
-                trainer.model.render_depth(&v.camera, &v.rays)?,
+                fusion_geometry(&trainer.model, &v.camera, &v.rays, settings)?,
                 v.rays.clone(),
             )
         } else {
             let device = trainer.views[0].rays.device();
             let camera = kernel_camera(&data.camera, &data.name)?;
             let rays = pixel_rays(&camera, &device);
-            (trainer.model.render_depth(&camera, &rays)?, rays)
+            (
+                fusion_geometry(&trainer.model, &camera, &rays, settings)?,
+                rays,
+            )
         };
         let normal = host_vec(g.normal);
         let rays = host_vec(rays);
@@ -259,7 +280,7 @@ pub fn evaluate(
         _ => (None, None, None),
     };
     let depth = match gt {
-        Some(gt) if !coarse => test_view_geometry(trainer, tests, scene, gt)?,
+        Some(gt) if !coarse => test_view_geometry(trainer, tests, scene, gt, settings)?,
         _ => None,
     };
     let avg = |x: f64, k: usize| if k > 0 { Some(x / k as f64) } else { None };
@@ -285,12 +306,13 @@ fn test_view_geometry(
     tests: &[ViewTensors],
     scene: &Scene,
     gt: &TriMesh,
+    settings: &MeshSettings,
 ) -> Result<Option<DepthMetrics>> {
     let caster = MeshRaycaster::new(gt, "ground-truth mesh")?;
     let mut cmp = DepthComparison::new();
     for (v, data) in tests.iter().zip(&scene.test) {
         let truth = caster.render(&data.camera);
-        let g = trainer.model.render_depth(&v.camera, &v.rays)?;
+        let g = fusion_geometry(&trainer.model, &v.camera, &v.rays, settings)?;
         let depth = host_vec(g.depth);
         let normal = host_vec(g.normal);
         let cov = host_vec(g.coverage);

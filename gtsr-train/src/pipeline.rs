@@ -360,6 +360,11 @@ pub fn run(args: &Args) -> Result<Outcome> {
         }
         None => None,
     };
+    if let Some(t) = args.depth_crossing
+        && !(t > 0.0 && t < 1.0)
+    {
+        bail!("--depth-crossing must be in (0, 1), got {t}");
+    }
     if args.silhouettes_only && scene.train.iter().any(|v| v.mask.is_none()) {
         bail!(
             "--silhouettes-only needs a mask on every training view; {} has none on some",
@@ -372,6 +377,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
         fusion_views: fusion_views(args, &data_dir, &opts, &scene)?,
         silhouette_carving: !args.no_silhouette_carving,
         fuse_depth: !args.silhouettes_only,
+        depth_crossing: args.depth_crossing,
         bounds: outputs::hull_bounds(&scene.train)?,
     };
 

@@ -40,6 +40,14 @@ pub struct BenchReconArgs {
     /// by 30 %; 640 gives about the voxel gtsr-train's fusion uses on the shared scenes).
     #[arg(long, default_value_t = 640)]
     pub hull_resolution: usize,
+    /// The threshold T of each run's extra "crossing depth only" row (gtsr-train
+    /// `--depth-crossing T --no-silhouette-carving`: the depth of the surface splat at which
+    /// the transmittance falls to T, instead of the blend, fused alone).
+    #[arg(long, default_value_t = 0.97)]
+    pub depth_crossing: f64,
+    /// Leave the crossing-depth rows out.
+    #[arg(long)]
+    pub no_crossing_rows: bool,
 }
 
 fn target_dir() -> PathBuf {
@@ -169,10 +177,10 @@ fn run_gtsr_train(
     read_metrics(out)
 }
 
-/// Another fusion of a trained run: the copy's folder suffix, gtsr-train's flag, the row label.
+/// Another fusion of a trained run: the copy's folder suffix, gtsr-train's flags, the row label.
 struct Fusion<'a> {
     suffix: &'a str,
-    flag: &'a str,
+    flags: Vec<String>,
     label: String,
 }
 
@@ -189,7 +197,7 @@ fn derived_row(
     args: &BenchReconArgs,
     Fusion {
         suffix,
-        flag,
+        flags,
         label,
     }: Fusion,
 ) -> Result<ReportRow> {
@@ -208,13 +216,15 @@ fn derived_row(
             .with_context(|| format!("copying {} to {}", run.join(f).display(), out.display()))?;
     }
     let t0 = Instant::now();
+    let mut extra = vec!["--resume"];
+    extra.extend(flags.iter().map(String::as_str));
     let m = run_gtsr_train(
         exe,
         scene_dir,
         &out,
         method,
         args,
-        &["--resume", flag],
+        &extra,
         &format!("{name} / {method} {suffix}"),
     )?;
     Ok(ReportRow {
@@ -223,6 +233,10 @@ fn derived_row(
         chamfer: m.mesh.as_ref().map(|x| x.chamfer),
         chamfer_whole_gt: m.mesh_whole_gt.as_ref().map(|x| x.chamfer),
         fscore: m.mesh.as_ref().map(|x| x.fscore),
+        // The test-view depth of the fusion (the crossing depth with `--depth-crossing`).
+        depth_err: m.test_depth.map(|d| d.depth_median_abs),
+        depth_bias: m.test_depth.map(|d| d.depth_mean_signed),
+        normal_err_deg: m.test_depth.map(|d| d.normal_mean_deg),
         seconds: Some(t0.elapsed().as_secs_f64()),
         ..ReportRow::default()
     })
@@ -298,10 +312,32 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                     args,
                     Fusion {
                         suffix: "depth-only",
-                        flag: "--no-silhouette-carving",
+                        flags: vec!["--no-silhouette-carving".into()],
                         label: format!("{method}, depth only (no silhouettes in the fusion)"),
                     },
                 )?);
+                if !args.no_crossing_rows {
+                    let t = args.depth_crossing;
+                    rows.push(derived_row(
+                        &exe,
+                        scene_dir,
+                        &out,
+                        &name,
+                        method,
+                        args,
+                        Fusion {
+                            suffix: "crossing-depth-only",
+                            flags: vec![
+                                "--no-silhouette-carving".into(),
+                                "--depth-crossing".into(),
+                                t.to_string(),
+                            ],
+                            label: format!(
+                                "{method}, crossing depth only (T = {t}, no silhouettes)"
+                            ),
+                        },
+                    )?);
+                }
             }
         }
         if args.methods.iter().any(|m| m == "full") {
@@ -316,7 +352,7 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                 args,
                 Fusion {
                     suffix: "silhouettes-only",
-                    flag: "--silhouettes-only",
+                    flags: vec!["--silhouettes-only".into()],
                     label: "masks only, fused as gtsr-train does (the full run's grid, no depth)"
                         .into(),
                 },

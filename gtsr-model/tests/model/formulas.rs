@@ -267,6 +267,35 @@ fn unbiased_depth_is_the_ray_plane_intersection() {
     assert!(checked > 300, "only {checked} covered pixels");
 }
 
+/// The crossing depth takes one layer of a stack where the blended depth averages them.
+#[test]
+fn crossing_depth_is_one_layer_of_a_stack() {
+    let device = Device::ndarray();
+    // Three facing layers of opacity 0.5 at z-depths 3.8, 4.0, 4.2: the transmittance after
+    // each is just above 0.5, 0.25, 0.125.
+    let (model, cam) = facing_stack(&[-0.2, 0.0, 0.2], &device);
+    let rays = pixel_rays(&cam, &device);
+    let blended = host_vec(model.render_depth(&cam, &rays).unwrap().depth);
+    for (threshold, want) in [(0.9, 3.8), (0.5, 4.0), (0.2, 4.2)] {
+        let g = model.render_depth_crossing(&cam, &rays, threshold).unwrap();
+        let depth = host_vec(g.depth);
+        assert!(host_vec(g.coverage).iter().all(|c| *c == 1.0));
+        for (p, d) in depth.iter().enumerate() {
+            assert!(
+                (f64::from(*d) - want).abs() < 1e-4,
+                "threshold {threshold}, pixel {p}: depth {d}, want {want}"
+            );
+        }
+    }
+    // The blend sits between the layers, nearer the front: (0.5 3.8 + 0.25 4 + 0.125 4.2) / 0.875.
+    for d in &blended {
+        assert!((f64::from(*d) - 3.9143).abs() < 1e-3, "blended depth {d}");
+    }
+    // Nothing crosses a threshold below the final transmittance.
+    let g = model.render_depth_crossing(&cam, &rays, 0.1).unwrap();
+    assert!(host_vec(g.coverage).iter().all(|c| *c == 0.0));
+}
+
 /// Facing discs (normal along the view axis) at world `z` values `zs`, opacity 0.5, seen
 /// head-on from `(0, 0, -4)`: their plane distances are `4 + z`.
 fn facing_stack(zs: &[f32], device: &Device) -> (Model, Camera) {

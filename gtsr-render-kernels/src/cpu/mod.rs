@@ -11,7 +11,7 @@ mod raster;
 
 use rayon::prelude::*;
 
-use crate::config::{SplatConfig, status};
+use crate::config::{SplatConfig, TILE_PIXELS, TILE_SIZE, status};
 use crate::scalar::Real;
 use bin::Bins;
 use project::{CamF, GaussIn, Splat};
@@ -107,6 +107,74 @@ pub struct HostGradients<F> {
 
 /// Renders `g` with `cfg`. Shapes must be consistent (the Burn wrapper checks them).
 pub fn forward<F: Real>(g: &HostGaussians<'_, F>, cfg: &SplatConfig) -> ForwardOutput<F> {
+    forward_impl(g, cfg, None)
+}
+
+/// Output of [`crossing_features`].
+#[derive(Debug, Clone)]
+pub struct CrossingOutput<F> {
+    /// Row-major `[H, W, C]`: per pixel the features of the splat whose blend took the pixel's
+    /// transmittance to or below the threshold (0 where it stayed above).
+    pub features: Vec<F>,
+    /// Row-major `[H, W]`: 1 where the transmittance crossed the threshold, else 0.
+    pub found: Vec<F>,
+    /// Row-major `[H, W, C + 1]`: the ordinary render ([`ForwardOutput::image`]).
+    pub image: Vec<F>,
+}
+
+/// Forward only: per pixel the features of the splat at which the front-to-back transmittance
+/// first falls to or below `threshold` (in `(0, 1)`; 0.5 gives the "median" splat of 2DGS's and
+/// RaDe-GS's median depth), not a blend. With per-splat plane features this gives the depth of
+/// one splat's plane along the ray instead of a weighted mean over every layer the ray crosses.
+///
+/// # Panics
+/// If `threshold` is not in `(0, 1)` (the Burn wrapper [`crate::render_crossing`] checks it).
+pub fn crossing_features<F: Real>(
+    g: &HostGaussians<'_, F>,
+    cfg: &SplatConfig,
+    threshold: f64,
+) -> CrossingOutput<F> {
+    assert!(
+        threshold > 0.0 && threshold < 1.0,
+        "crossing threshold must be in (0, 1), got {threshold}"
+    );
+    let out = forward_impl(g, cfg, Some(F::c(threshold)));
+    let c = out.state.channels;
+    let bins = &out.state.bins;
+    let cross = &out.state.raster.crossing;
+    let (w, h) = (cfg.camera.width as usize, cfg.camera.height as usize);
+    let tiles_x = cfg.camera.tile_grid().0 as usize;
+    let ts = TILE_SIZE as usize;
+    let mut features = vec![F::zero(); w * h * c];
+    let mut found = vec![F::zero(); w * h];
+    features
+        .par_chunks_mut(w * c)
+        .zip(found.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, (row, frow))| {
+            for x in 0..w {
+                let t = (y / ts) * tiles_x + x / ts;
+                let k = cross[t * TILE_PIXELS + (y % ts) * ts + x % ts] as usize;
+                if k == 0 {
+                    continue;
+                }
+                let j = bins.tile_ranges[t][0] as usize + k - 1;
+                row[x * c..(x + 1) * c].copy_from_slice(&bins.packed_features[j * c..(j + 1) * c]);
+                frow[x] = F::one();
+            }
+        });
+    CrossingOutput {
+        features,
+        found,
+        image: out.image,
+    }
+}
+
+fn forward_impl<F: Real>(
+    g: &HostGaussians<'_, F>,
+    cfg: &SplatConfig,
+    crossing: Option<F>,
+) -> ForwardOutput<F> {
     let cam = CamF::<F>::new(cfg);
     let n = g.len();
     let c = cfg.background.len();
@@ -159,6 +227,7 @@ pub fn forward<F: Real>(g: &HostGaussians<'_, F>, cfg: &SplatConfig) -> ForwardO
         channels: c,
         background: &background,
         cutoff: cfg.cutoff,
+        crossing,
     };
     let (image, raster, evaluations) = raster::rasterize(&bins, &ctx);
     let intersections = bins.packed.len();
@@ -195,6 +264,7 @@ pub fn backward<F: Real>(
         channels: c,
         background: &state.background,
         cutoff: cfg.cutoff,
+        crossing: None,
     };
     let slots = raster::rasterize_backward(&state.bins, &ctx, &state.raster, grad_image);
     let slot = SLOT_FIXED + c;

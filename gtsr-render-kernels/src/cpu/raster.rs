@@ -21,6 +21,9 @@ pub(crate) struct RasterCtx<'a, F> {
     pub channels: usize,
     pub background: &'a [F],
     pub cutoff: AlphaCutoff,
+    /// When set, record per pixel the splat at which the transmittance first falls to or below
+    /// this value ([`RasterState::crossing`]).
+    pub crossing: Option<F>,
 }
 
 /// Forward results kept for the backward pass.
@@ -30,6 +33,10 @@ pub(crate) struct RasterState<F> {
     pub t_final: Vec<F>,
     /// Per pixel, one past the index (in its tile's list) of the last splat blended.
     pub n_contrib: Vec<u32>,
+    /// With [`RasterCtx::crossing`]: per pixel (tile-major), one past the index in its tile's
+    /// list of the splat whose blend took the transmittance to or below the threshold; 0 where
+    /// it stayed above. Empty otherwise.
+    pub crossing: Vec<u32>,
 }
 
 /// The splat's exponent along one pixel row: `power(dx) = (ha * dx + lin) * dx + cst` with
@@ -141,14 +148,28 @@ fn rasterize_n<F: Real, const CH: usize>(
     let mut tile_buf = vec![F::zero(); n_tiles * TILE_PIXELS * stride];
     let mut t_final = vec![F::one(); n_tiles * TILE_PIXELS];
     let mut n_contrib = vec![0u32; n_tiles * TILE_PIXELS];
+    let mut crossing = vec![
+        0u32;
+        if ctx.crossing.is_some() {
+            n_tiles * TILE_PIXELS
+        } else {
+            0
+        }
+    ];
+    let mut crossing_chunks: Vec<&mut [u32]> = if ctx.crossing.is_some() {
+        crossing.chunks_mut(TILE_PIXELS).collect()
+    } else {
+        (0..n_tiles).map(|_| &mut [][..]).collect()
+    };
     let t_min = F::c(TRANSMITTANCE_MIN);
 
     let evals: u64 = tile_buf
         .par_chunks_mut(TILE_PIXELS * stride)
         .zip(t_final.par_chunks_mut(TILE_PIXELS))
         .zip(n_contrib.par_chunks_mut(TILE_PIXELS))
+        .zip(crossing_chunks.par_iter_mut())
         .enumerate()
-        .map(|(t, ((img, trans), nc))| {
+        .map(|(t, (((img, trans), nc), cross))| {
             let (ox, oy, ex, ey) = tile_bounds(t, ctx);
             // Bit x of alive[y] is set while pixel (x, y) of the tile still accumulates.
             let mut alive = [0u32; TILE_SIZE as usize];
@@ -202,6 +223,12 @@ fn rasterize_n<F: Real, const CH: usize>(
                         }
                         trans[p] = next_t;
                         nc[p] = k as u32 + 1;
+                        if let Some(threshold) = ctx.crossing
+                            && next_t <= threshold
+                            && tp > threshold
+                        {
+                            cross[p] = k as u32 + 1;
+                        }
                     }
                 }
             }
@@ -232,7 +259,16 @@ fn rasterize_n<F: Real, const CH: usize>(
                     .copy_from_slice(&tile_buf[p * stride..(p + 1) * stride]);
             }
         });
-    (image, RasterState { t_final, n_contrib }, evals)
+    drop(crossing_chunks);
+    (
+        image,
+        RasterState {
+            t_final,
+            n_contrib,
+            crossing,
+        },
+        evals,
+    )
 }
 
 /// Number of gradient values stored per (tile, splat) intersection: screen mean (2), conic (3),

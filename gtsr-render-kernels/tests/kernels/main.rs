@@ -6,6 +6,7 @@
 
 mod analytic;
 mod common;
+mod crossing;
 mod determinism;
 mod errors;
 mod forward;
