@@ -8,11 +8,11 @@
 //!   and alpha are differentiable with respect to means, rotations, scales, opacities, features
 //!   and optional screen-space offsets, through whatever Burn expressions produced them;
 //! - the backend is chosen by the device: NdArray (f32 or f64, parallel over tiles with rayon),
-//!   or, with the `wgpu` feature, Burn's wgpu backend (f32; CubeCL kernels in [`gpu`], run
+//!   or, with the `wgpu` feature, Burn's wgpu backend (f32; CubeCL kernels in the `gpu` module, run
 //!   through `Fusion`);
 //! - [`render_crossing`] (forward only, on the host) gives per pixel the features of the splat
 //!   at which the transmittance falls to a threshold instead of their blend (median depth);
-//! - [`reference`] is an independent brute-force renderer (every pixel against every Gaussian)
+//! - [`mod@reference`] is an independent brute-force renderer (every pixel against every Gaussian)
 //!   used to check the kernels.
 //!
 //! # Conventions (3DGS)
