@@ -126,6 +126,27 @@ struct Prepared {
     offsets: Option<Tensor<2>>,
 }
 
+/// The render settings of every pass: black background, 3DGS's hard cut-off.
+fn splat_config(camera: &Camera, channels: usize, blur_px2: f64) -> SplatConfig {
+    SplatConfig {
+        camera: camera.clone(),
+        background: vec![0.0; channels],
+        cutoff: AlphaCutoff::Hard,
+        blur_px2,
+    }
+}
+
+fn splat_inputs(p: &Prepared, opacities: Tensor<1>, features: Tensor<2>) -> SplatInputs {
+    SplatInputs {
+        means: p.means.clone(),
+        quats: p.quats.clone(),
+        scales: p.scales.clone(),
+        opacities,
+        features,
+        xy_offsets: p.offsets.clone(),
+    }
+}
+
 fn splat(
     p: &Prepared,
     opacities: Tensor<1>,
@@ -133,24 +154,31 @@ fn splat(
     camera: &Camera,
     blur_px2: f64,
 ) -> Result<gtsr_render_kernels::RenderOutput, ModelError> {
-    let c = features.dims()[1];
-    let cfg = SplatConfig {
-        camera: camera.clone(),
-        background: vec![0.0; c],
-        cutoff: AlphaCutoff::Hard,
-        blur_px2,
-    };
-    Ok(render(
-        SplatInputs {
-            means: p.means.clone(),
-            quats: p.quats.clone(),
-            scales: p.scales.clone(),
-            opacities,
-            features,
-            xy_offsets: p.offsets.clone(),
-        },
-        &cfg,
-    )?)
+    let cfg = splat_config(camera, features.dims()[1], blur_px2);
+    Ok(render(splat_inputs(p, opacities, features), &cfg)?)
+}
+
+/// The depth-only [`GeometryMaps`] from `[H, W, 4]` maps of normal and plane distance.
+fn depth_maps(
+    maps: Tensor<3>,
+    coverage: Tensor<2>,
+    rays: &Tensor<3>,
+    tile_splats: u64,
+) -> GeometryMaps {
+    let [h, w, _] = rays.dims();
+    let normal = maps.clone().slice([0..h, 0..w, 0..3]);
+    let plane = maps.slice([0..h, 0..w, 3..4]).reshape([h, w]);
+    let depth = unbiased_depth(&normal, &plane, rays);
+    GeometryMaps {
+        normal,
+        plane,
+        coverage,
+        depth,
+        base: None,
+        roughness: None,
+        spread: None,
+        tile_splats,
+    }
 }
 
 fn cat_prepared(a: &Prepared, b: &Prepared) -> Prepared {
@@ -367,9 +395,6 @@ impl Model {
         }
         let geometry = geometry_out.map(|(maps, coverage, tiles)| {
             let ch = maps.dims()[2];
-            let normal = maps.clone().slice([0..h, 0..w, 0..3]);
-            let plane = maps.clone().slice([0..h, 0..w, 3..4]).reshape([h, w]);
-            let depth = unbiased_depth(&normal, &plane, rays);
             let spread = opts.spread.then(|| {
                 let moments = maps.clone().slice([0..h, 0..w, ch - SPREAD_CHANNELS..ch]);
                 plane_spread(moments, &coverage, rays)
@@ -377,20 +402,16 @@ impl Model {
             let (base, roughness) = if material {
                 (
                     Some(maps.clone().slice([0..h, 0..w, 4..7])),
-                    Some(maps.slice([0..h, 0..w, 7..8]).reshape([h, w])),
+                    Some(maps.clone().slice([0..h, 0..w, 7..8]).reshape([h, w])),
                 )
             } else {
                 (None, None)
             };
             GeometryMaps {
-                normal,
-                plane,
-                coverage,
-                depth,
                 base,
                 roughness,
                 spread,
-                tile_splats: tiles,
+                ..depth_maps(maps, coverage, rays, tiles)
             }
         });
 
@@ -456,24 +477,10 @@ impl Model {
         let surf = self.prepare(&self.surface, camera, true, false);
         let feats = self.geometry_features(&surf, camera, false, false);
         let out = splat(&surf, surf.opacities.clone(), feats, camera, self.blur_px2)?;
-        let [h, w, _] = rays.dims();
-        let normal = out.image.clone().slice([0..h, 0..w, 0..3]);
-        let plane = out.image.slice([0..h, 0..w, 3..4]).reshape([h, w]);
-        let depth = unbiased_depth(&normal, &plane, rays);
-        Ok(GeometryMaps {
-            normal,
-            plane,
-            coverage: out.alpha,
-            depth,
-            base: None,
-            roughness: None,
-            spread: None,
-            tile_splats: radii_and_tiles(out.aux).1,
-        })
+        let tiles = radii_and_tiles(out.aux).1;
+        Ok(depth_maps(out.image, out.alpha, rays, tiles))
     }
-}
 
-impl Model {
     /// Like [`Model::render_depth`], but each pixel takes the normal, plane and depth of the one
     /// surface splat at which the pixel's transmittance first falls to `threshold` (0.5: the
     /// median splat, as 2DGS's median depth) instead of their blend over every layer the ray
@@ -488,38 +495,10 @@ impl Model {
     ) -> Result<GeometryMaps, ModelError> {
         let surf = self.prepare(&self.surface, camera, true, false);
         let feats = self.geometry_features(&surf, camera, false, false);
-        let cfg = SplatConfig {
-            camera: camera.clone(),
-            background: vec![0.0; feats.dims()[1]],
-            cutoff: AlphaCutoff::Hard,
-            blur_px2: self.blur_px2,
-        };
-        let out = gtsr_render_kernels::render_crossing(
-            SplatInputs {
-                means: surf.means,
-                quats: surf.quats,
-                scales: surf.scales,
-                opacities: surf.opacities,
-                features: feats,
-                xy_offsets: None,
-            },
-            &cfg,
-            threshold,
-        )?;
-        let [h, w, _] = rays.dims();
-        let normal = out.features.clone().slice([0..h, 0..w, 0..3]);
-        let plane = out.features.slice([0..h, 0..w, 3..4]).reshape([h, w]);
-        let depth = unbiased_depth(&normal, &plane, rays);
-        Ok(GeometryMaps {
-            normal,
-            plane,
-            coverage: out.found,
-            depth,
-            base: None,
-            roughness: None,
-            spread: None,
-            tile_splats: 0,
-        })
+        let cfg = splat_config(camera, feats.dims()[1], self.blur_px2);
+        let inputs = splat_inputs(&surf, surf.opacities.clone(), feats);
+        let out = gtsr_render_kernels::render_crossing(inputs, &cfg, threshold)?;
+        Ok(depth_maps(out.features, out.found, rays, 0))
     }
 }
 

@@ -128,45 +128,69 @@ fn project(g: &HostGaussians<'_, f64>, i: usize, cfg: &SplatConfig) -> Option<Pr
     })
 }
 
+/// The Gaussians of `g` that project, in blending order (depth, then index).
+fn depth_sorted(g: &HostGaussians<'_, f64>, cfg: &SplatConfig) -> Vec<Projected> {
+    let mut list: Vec<Projected> = (0..g.len()).filter_map(|i| project(g, i, cfg)).collect();
+    list.sort_by(|a, b| a.depth.total_cmp(&b.depth).then(a.index.cmp(&b.index)));
+    list
+}
+
+/// Walks `list` front to back at the pixel centre `(x, y)`, calling `blend(splat, alpha, t)`
+/// (`t`: the transmittance before it) for every splat blended, until `blend` returns false or
+/// the pixel would saturate. Returns the transmittance left.
+fn walk(
+    list: &[Projected],
+    cutoff: AlphaCutoff,
+    x: f64,
+    y: f64,
+    mut blend: impl FnMut(&Projected, f64, f64) -> bool,
+) -> f64 {
+    let mut t = 1.0;
+    for s in list {
+        let d = [x - s.mean[0], y - s.mean[1]];
+        let q = d[0] * (s.inv[0][0] * d[0] + s.inv[0][1] * d[1])
+            + d[1] * (s.inv[1][0] * d[0] + s.inv[1][1] * d[1]);
+        let mut alpha = (s.opacity * (-0.5 * q).exp()).min(ALPHA_MAX);
+        if alpha < ALPHA_MIN {
+            continue;
+        }
+        if cutoff == AlphaCutoff::Smooth {
+            let u = ((alpha - ALPHA_MIN) / ALPHA_MIN).min(1.0);
+            alpha *= u * u * (3.0 - 2.0 * u);
+        }
+        let next = t * (1.0 - alpha);
+        if next < TRANSMITTANCE_MIN {
+            break;
+        }
+        let go_on = blend(s, alpha, t);
+        t = next;
+        if !go_on {
+            break;
+        }
+    }
+    t
+}
+
 /// Renders `g` pixel by pixel. Returns row-major `[H, W, C + 1]` (features, then alpha).
 pub fn render_reference(g: &HostGaussians<'_, f64>, cfg: &SplatConfig) -> Vec<f64> {
     let c = cfg.background.len();
-    let mut list: Vec<Projected> = (0..g.len()).filter_map(|i| project(g, i, cfg)).collect();
-    list.sort_by(|a, b| a.depth.total_cmp(&b.depth).then(a.index.cmp(&b.index)));
-    let (w, h) = (cfg.camera.width as usize, cfg.camera.height as usize);
-    let mut out = vec![0.0; w * h * (c + 1)];
+    let list = depth_sorted(g, cfg);
+    let w = cfg.camera.width as usize;
+    let mut out = vec![0.0; w * cfg.camera.height as usize * (c + 1)];
     out.par_chunks_mut(c + 1).enumerate().for_each(|(pix, px)| {
-        let x = (pix % w) as f64 + 0.5;
-        let y = (pix / w) as f64 + 0.5;
-        let mut t = 1.0;
-        for s in &list {
-            let d = [x - s.mean[0], y - s.mean[1]];
-            let q = d[0] * (s.inv[0][0] * d[0] + s.inv[0][1] * d[1])
-                + d[1] * (s.inv[1][0] * d[0] + s.inv[1][1] * d[1]);
-            let mut alpha = (s.opacity * (-0.5 * q).exp()).min(ALPHA_MAX);
-            if alpha < ALPHA_MIN {
-                continue;
-            }
-            if cfg.cutoff == AlphaCutoff::Smooth {
-                let u = ((alpha - ALPHA_MIN) / ALPHA_MIN).min(1.0);
-                alpha *= u * u * (3.0 - 2.0 * u);
-            }
-            let next = t * (1.0 - alpha);
-            if next < TRANSMITTANCE_MIN {
-                break;
-            }
+        let (x, y) = ((pix % w) as f64 + 0.5, (pix / w) as f64 + 0.5);
+        let t = walk(&list, cfg.cutoff, x, y, |s, alpha, t| {
             let f = &g.features[s.index * c..(s.index + 1) * c];
             for (acc, fk) in px.iter_mut().zip(f) {
                 *acc += fk * alpha * t;
             }
-            t = next;
-        }
+            true
+        });
         for (acc, b) in px.iter_mut().zip(&cfg.background) {
             *acc += t * b;
         }
         px[c] = 1.0 - t;
     });
-    let _ = h;
     out
 }
 
@@ -179,8 +203,7 @@ pub fn crossing_reference(
     threshold: f64,
 ) -> (Vec<f64>, Vec<f64>) {
     let c = cfg.background.len();
-    let mut list: Vec<Projected> = (0..g.len()).filter_map(|i| project(g, i, cfg)).collect();
-    list.sort_by(|a, b| a.depth.total_cmp(&b.depth).then(a.index.cmp(&b.index)));
+    let list = depth_sorted(g, cfg);
     let (w, h) = (cfg.camera.width as usize, cfg.camera.height as usize);
     let mut feats = vec![0.0; w * h * c];
     let mut found = vec![0.0; w * h];
@@ -189,32 +212,15 @@ pub fn crossing_reference(
         .zip(found.par_iter_mut())
         .enumerate()
         .for_each(|(pix, (px, hit))| {
-            let x = (pix % w) as f64 + 0.5;
-            let y = (pix / w) as f64 + 0.5;
-            let mut t = 1.0;
-            for s in &list {
-                let d = [x - s.mean[0], y - s.mean[1]];
-                let q = d[0] * (s.inv[0][0] * d[0] + s.inv[0][1] * d[1])
-                    + d[1] * (s.inv[1][0] * d[0] + s.inv[1][1] * d[1]);
-                let mut alpha = (s.opacity * (-0.5 * q).exp()).min(ALPHA_MAX);
-                if alpha < ALPHA_MIN {
-                    continue;
+            let (x, y) = ((pix % w) as f64 + 0.5, (pix / w) as f64 + 0.5);
+            walk(&list, cfg.cutoff, x, y, |s, alpha, t| {
+                if t * (1.0 - alpha) > threshold {
+                    return true;
                 }
-                if cfg.cutoff == AlphaCutoff::Smooth {
-                    let u = ((alpha - ALPHA_MIN) / ALPHA_MIN).min(1.0);
-                    alpha *= u * u * (3.0 - 2.0 * u);
-                }
-                let next = t * (1.0 - alpha);
-                if next < TRANSMITTANCE_MIN {
-                    break;
-                }
-                if next <= threshold {
-                    px.copy_from_slice(&g.features[s.index * c..(s.index + 1) * c]);
-                    *hit = 1.0;
-                    break;
-                }
-                t = next;
-            }
+                px.copy_from_slice(&g.features[s.index * c..(s.index + 1) * c]);
+                *hit = 1.0;
+                false
+            });
         });
     (feats, found)
 }

@@ -303,39 +303,26 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                 series.push((format!("{name} {method}"), tl));
             }
             if m.mesh.is_some() {
-                rows.push(derived_row(
-                    &exe,
-                    scene_dir,
-                    &out,
-                    &name,
-                    method,
-                    args,
-                    Fusion {
-                        suffix: "depth-only",
-                        flags: vec!["--no-silhouette-carving".into()],
-                        label: format!("{method}, depth only (no silhouettes in the fusion)"),
-                    },
-                )?);
+                let mut fusions = vec![Fusion {
+                    suffix: "depth-only",
+                    flags: vec!["--no-silhouette-carving".into()],
+                    label: format!("{method}, depth only (no silhouettes in the fusion)"),
+                }];
                 if !args.no_crossing_rows {
                     let t = args.depth_crossing;
+                    fusions.push(Fusion {
+                        suffix: "crossing-depth-only",
+                        flags: vec![
+                            "--no-silhouette-carving".into(),
+                            "--depth-crossing".into(),
+                            t.to_string(),
+                        ],
+                        label: format!("{method}, crossing depth only (T = {t}, no silhouettes)"),
+                    });
+                }
+                for fusion in fusions {
                     rows.push(derived_row(
-                        &exe,
-                        scene_dir,
-                        &out,
-                        &name,
-                        method,
-                        args,
-                        Fusion {
-                            suffix: "crossing-depth-only",
-                            flags: vec![
-                                "--no-silhouette-carving".into(),
-                                "--depth-crossing".into(),
-                                t.to_string(),
-                            ],
-                            label: format!(
-                                "{method}, crossing depth only (T = {t}, no silhouettes)"
-                            ),
-                        },
+                        &exe, scene_dir, &out, &name, method, args, fusion,
                     )?);
                 }
             }
