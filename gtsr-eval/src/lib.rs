@@ -10,6 +10,7 @@
 
 #![warn(missing_docs)]
 
+pub mod consistency;
 pub mod depth;
 pub mod error;
 pub mod hull;
@@ -20,6 +21,7 @@ pub mod report;
 pub mod timeline;
 pub mod tsdf;
 
+pub use consistency::{ConsistencySettings, DepthView, filter_consistent};
 pub use depth::{DepthComparison, DepthMetrics, MeshDepth, MeshRaycaster};
 pub use error::{EvalError, Result};
 pub use hull::visual_hull;

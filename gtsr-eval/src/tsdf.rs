@@ -202,6 +202,35 @@ pub fn drop_depth_edges(
     Ok(())
 }
 
+/// Replaces each depth sample that lies less than `footprints` pixel footprints behind the
+/// masks' hull along its ray (or in front of it) by the hull's depth, and returns how many it
+/// replaced. The object lies inside the hull, so where the rendered depth does not go
+/// clearly deeper it says nothing the hull does not, and the hull, cut by every view's
+/// silhouette, is the sharper of the two; what stays is the depth of concavities that no
+/// silhouette sees. `depth` and `hull` (from [`TsdfVolume::hull_depth`]) are z-depth maps of
+/// the same size (`<= 0`: none; samples whose ray misses the hull stay), `fx` the focal
+/// length in pixels. Errors on mismatched sizes or a tolerance that is not finite and
+/// non-negative.
+pub fn snap_to_hull(depth: &mut [f32], hull: &[f32], fx: f32, footprints: f32) -> Result<usize> {
+    if depth.len() != hull.len() {
+        return Err(EvalError::size("hull depth map", depth.len(), hull.len()));
+    }
+    if !(footprints.is_finite() && footprints >= 0.0 && fx.is_finite() && fx > 0.0) {
+        return Err(EvalError::InvalidArgument(format!(
+            "snapping to the hull needs a finite tolerance >= 0 and a focal length > 0, got \
+             {footprints} footprints and fx {fx}"
+        )));
+    }
+    let mut snapped = 0;
+    for (d, &hd) in depth.iter_mut().zip(hull) {
+        if *d > 0.0 && hd > 0.0 && *d - hd < footprints * *d / fx {
+            *d = hd;
+            snapped += 1;
+        }
+    }
+    Ok(snapped)
+}
+
 /// A TSDF volume: a [`Grid`] of clamped signed distances plus the fusion weights.
 #[derive(Clone, Debug)]
 pub struct TsdfVolume {
@@ -211,6 +240,9 @@ pub struct TsdfVolume {
     /// With silhouette carving, per grid point: the visual-hull distance (positive outside
     /// some mask).
     hull: Option<Vec<f32>>,
+    /// Inside the hull where no depth map measured: the hull's own (negative) distance
+    /// instead of `-truncation`.
+    hull_inside_distance: bool,
 }
 
 impl TsdfVolume {
@@ -248,7 +280,18 @@ impl TsdfVolume {
             weights,
             truncation,
             hull: None,
+            hull_inside_distance: false,
         })
+    }
+
+    /// With carving: where no depth map measured a point inside the hull, keep the hull's own
+    /// distance there (negative: `(0.5 - mask) * z / fx`, at most half a pixel footprint deep)
+    /// instead of `-truncation`. Marching cubes then places the surface between the voxels
+    /// on either side of the hull's boundary from the hull field's values on both sides,
+    /// not at the outside voxel (a full `-truncation` inside pulls the crossing to it).
+    pub fn with_hull_inside_distance(mut self) -> Self {
+        self.hull_inside_distance = true;
+        self
     }
 
     /// Turns on silhouette carving (see the module documentation): a grid point outside any
@@ -273,12 +316,84 @@ impl TsdfVolume {
                 } else if !*o && d.is_finite() {
                     // Inside every silhouette that sees it and never measured by a depth map:
                     // the hull is the best bound there is, so it counts as inside.
-                    *v = -self.truncation;
+                    *v = if self.hull_inside_distance {
+                        d.max(-self.truncation)
+                    } else {
+                        -self.truncation
+                    };
                     *o = true;
                 }
             }
         }
         g
+    }
+
+    /// With silhouette carving, the z-depth at which each pixel centre's ray first enters the
+    /// masks' hull as fused so far (its field, sampled at the nearest grid point every half
+    /// voxel from the camera through the box, the crossing placed linearly between the last
+    /// sample outside and the first inside); `0` where the ray misses it. `None` without
+    /// carving. Integrate every view's mask first: the hull is the intersection over the
+    /// views seen so far.
+    pub fn hull_depth(&self, camera: &Camera) -> Option<Vec<f32>> {
+        let hull = self.hull.as_ref()?;
+        let g = &self.grid;
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        let to_world = camera.world_to_camera.inverse();
+        let eye = to_world.transform_point3(Vec3::ZERO);
+        let lo = g.origin;
+        let hi = g.origin
+            + g.voxel
+                * Vec3::new(
+                    (g.dims[0] - 1) as f32,
+                    (g.dims[1] - 1) as f32,
+                    (g.dims[2] - 1) as f32,
+                );
+        let sample = |p: Vec3| -> Option<f32> {
+            let c = ((p - lo) / g.voxel).round();
+            if c.min_element() < 0.0 {
+                return None;
+            }
+            let (i, j, k) = (c.x as usize, c.y as usize, c.z as usize);
+            if i >= g.dims[0] || j >= g.dims[1] || k >= g.dims[2] {
+                return None;
+            }
+            let v = hull[g.index(i, j, k)];
+            // Never seen by a mask: no bound.
+            v.is_finite().then_some(v)
+        };
+        let depth = (0..w * h)
+            .into_par_iter()
+            .map(|p| {
+                let (x, y) = ((p % w) as f32 + 0.5, (p / w) as f32 + 0.5);
+                // t is the z-depth: the camera-space ray has z = 1.
+                let dir = to_world.transform_vector3(camera.camera_direction(x, y));
+                // The ray's span inside the box (slab test).
+                let inv = dir.recip();
+                let (t0, t1) = ((lo - eye) * inv, (hi - eye) * inv);
+                let enter = t0.min(t1).max_element().max(1e-6);
+                let exit = t0.max(t1).min_element();
+                if !(enter.is_finite() && exit.is_finite()) || enter >= exit {
+                    return 0.0;
+                }
+                let dt = 0.5 * g.voxel / dir.length();
+                let mut prev: Option<(f32, f32)> = None;
+                let mut t = enter;
+                while t <= exit {
+                    if let Some(v) = sample(eye + t * dir) {
+                        if v <= 0.0 {
+                            return match prev {
+                                Some((tp, vp)) if vp > 0.0 => tp + (t - tp) * vp / (vp - v),
+                                _ => t,
+                            };
+                        }
+                        prev = Some((t, v));
+                    }
+                    t += dt;
+                }
+                0.0
+            })
+            .collect();
+        Some(depth)
     }
 
     /// The fused field (values and observed flags).

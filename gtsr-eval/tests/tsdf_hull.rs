@@ -2,7 +2,9 @@ mod common;
 
 use glam::Vec3;
 use gtsr_eval::mesh::{component_sizes, icosphere, is_closed};
-use gtsr_eval::tsdf::{default_truncation, drop_depth_edges, faces_ray, median_pixel_footprint};
+use gtsr_eval::tsdf::{
+    default_truncation, drop_depth_edges, faces_ray, median_pixel_footprint, snap_to_hull,
+};
 use gtsr_eval::{EvalError, TsdfVolume, chamfer, default_voxel_for_radius, visual_hull};
 
 #[test]
@@ -202,6 +204,122 @@ fn silhouette_carving_keeps_the_surface_inside_every_mask() {
     assert!(
         r_plain > r_hull + voxel,
         "{r_plain} against the hull's {r_hull}"
+    );
+}
+
+#[test]
+fn hull_depth_bounds_the_sphere_and_snapping_keeps_only_what_lies_deeper() {
+    let (voxel, trunc) = (0.01, 0.12);
+    let r = 0.4;
+    let cams = common::cameras_around(Vec3::ZERO, 2.0, 24, 40f32.to_radians(), 32);
+    let plain = TsdfVolume::new(Vec3::splat(-0.7), Vec3::splat(0.7), voxel, trunc).unwrap();
+    assert!(plain.hull_depth(&cams[0]).is_none(), "no carving, no hull");
+    let mut v = plain.with_silhouette_carving();
+    for cam in &cams {
+        let (_, mask) = common::render_sphere(cam, Vec3::ZERO, r);
+        v.integrate(cam, &vec![0.0; mask.len()], Some(&mask))
+            .unwrap();
+    }
+    let cam = &cams[3];
+    let (truth, mask) = common::render_sphere(cam, Vec3::ZERO, r);
+    let hull = v.hull_depth(cam).unwrap();
+    let footprint = 2.0 / cam.fx;
+    let (mut compared, mut gap) = (0, 0.0);
+    let interior = |p: usize| {
+        [p, p - 1, p + 1, p - 32, p + 32]
+            .iter()
+            .all(|&q| mask[q] > 0.5)
+    };
+    for p in 33..32 * 31 {
+        let (t, hd) = (truth[p], hull[p]);
+        if mask[p] < 0.5 {
+            continue;
+        }
+        // Inside the mask the ray enters the hull. Off the rim (where a grazing ray's depth
+        // changes fast) in front of the sphere, which the hull holds up to the masks' own
+        // error: their 0.5 level, bilinear between binary pixels, lies up to half a footprint
+        // inside the true silhouette.
+        assert!(hd > 0.0, "a ray inside the mask misses the hull");
+        if !interior(p) {
+            continue;
+        }
+        assert!(
+            hd <= t + 0.5 * footprint + voxel,
+            "the hull at {hd} lies behind the sphere at {t}"
+        );
+        // And not far in front: the hull of 24 views bulges between their cones.
+        assert!(
+            t - hd < 0.1,
+            "the hull at {hd} lies far in front of the sphere at {t}"
+        );
+        gap += t - hd;
+        compared += 1;
+    }
+    assert!(compared > 100, "{compared}");
+    assert!(
+        gap / (compared as f32) < footprint,
+        "mean gap {}",
+        gap / compared as f32
+    );
+    let centre = 16 * 32 + 16;
+    assert!(
+        (truth[centre] - hull[centre]).abs() < footprint,
+        "centre: sphere {} hull {}",
+        truth[centre],
+        hull[centre]
+    );
+    // No ray outside the masks' union can meet the hull beyond the rim's pixels.
+    assert_eq!(hull[0], 0.0);
+
+    // Snapping: 0.5 footprint behind the hull snaps, 3 behind stays, in front snaps, no depth
+    // stays none, a ray that misses the hull keeps its depth.
+    let h = hull[centre];
+    let fp = |d: f32| d / cam.fx;
+    let mut depth = vec![h + 0.5 * fp(h), h + 3.0 * fp(h), h - 0.1, 0.0, 1.7];
+    let hulls = [h, h, h, h, 0.0];
+    let snapped = snap_to_hull(&mut depth, &hulls, cam.fx, 2.0).unwrap();
+    assert_eq!(snapped, 2);
+    assert_eq!(depth[0], h);
+    assert!(depth[1] > h + 2.9 * fp(h));
+    assert_eq!(depth[2], h);
+    assert_eq!(depth[3], 0.0);
+    assert_eq!(depth[4], 1.7);
+    assert!(snap_to_hull(&mut depth, &hulls[..4], cam.fx, 2.0).is_err());
+    assert!(snap_to_hull(&mut depth, &hulls, cam.fx, f32::NAN).is_err());
+    assert!(snap_to_hull(&mut depth, &hulls, cam.fx, -1.0).is_err());
+}
+
+#[test]
+fn the_hulls_own_distance_inside_places_the_surface_between_voxels() {
+    // Masks alone, fine images (128 px: a pixel is 0.011 wide at the sphere, about a voxel).
+    let (voxel, trunc) = (0.01, 0.3);
+    let cams = common::cameras_around(Vec3::ZERO, 2.0, 40, 40f32.to_radians(), 128);
+    let fuse = |soft: bool| {
+        let mut v = TsdfVolume::new(Vec3::splat(-0.7), Vec3::splat(0.7), voxel, trunc)
+            .unwrap()
+            .with_silhouette_carving();
+        if soft {
+            v = v.with_hull_inside_distance();
+        }
+        for cam in &cams {
+            let (_, mask) = common::render_sphere(cam, Vec3::ZERO, 0.4);
+            v.integrate(cam, &vec![0.0; mask.len()], Some(&mask))
+                .unwrap();
+        }
+        let m = v.extract_mesh();
+        chamfer(&m, &icosphere(Vec3::ZERO, 0.4, 6), 50_000, voxel, 0).unwrap()
+    };
+    let (hard, soft) = (fuse(false), fuse(true));
+    // -truncation inside puts every crossing at the outside voxel: a staircase one voxel
+    // wide whose normals follow the grid (the hull of 40 views, a polyhedron around the
+    // sphere, is most of either's distance: 2.0e-3 against 2.35e-3 here).
+    assert!(
+        soft.chamfer < hard.chamfer,
+        "soft {soft:?} against hard {hard:?}"
+    );
+    assert!(
+        soft.normal_consistency > hard.normal_consistency + 0.05,
+        "soft {soft:?} against hard {hard:?}"
     );
 }
 

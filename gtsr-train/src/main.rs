@@ -81,6 +81,10 @@ pub struct Args {
     /// box and 6 training-pixel footprints at the object.
     #[arg(long)]
     pub truncation: Option<f32>,
+    /// TSDF truncation in training-pixel footprints (the median over the training views at the
+    /// mesh box's centre): the same share of a pixel at every resolution.
+    #[arg(long, conflicts_with = "truncation")]
+    pub truncation_footprints: Option<f32>,
     /// Longest image side of the depth maps fused into the mesh (the trained Gaussians are
     /// rendered again at this size, with the dataset's masks at this size). Default: the training
     /// resolution; at most the dataset's own size.
@@ -102,6 +106,28 @@ pub struct Args {
     /// PGSR; the test-view depth metrics then measure this depth. In (0, 1).
     #[arg(long)]
     pub depth_crossing: Option<f64>,
+    /// With carving, where no depth was fused inside the masks' hull keep the hull's own
+    /// (sub-voxel) distance instead of -truncation (gtsr-eval's
+    /// `TsdfVolume::with_hull_inside_distance`).
+    #[arg(long, conflicts_with = "no_silhouette_carving")]
+    pub hull_inside_distance: bool,
+    /// Replace each fused depth sample that lies less than this many pixel footprints behind
+    /// the masks' hull (or in front of it) by the hull's depth: only the depth of concavities
+    /// that no silhouette sees is fused (gtsr-eval's `tsdf::snap_to_hull`). Needs masks and
+    /// silhouette carving. Off by default.
+    #[arg(long, allow_negative_numbers = true, conflicts_with_all = ["no_silhouette_carving", "silhouettes_only"])]
+    pub snap_to_hull: Option<f32>,
+    /// Keep a fused depth sample only where at least this many of its neighbouring training
+    /// views' depth maps agree with it (multi-view consistency, as MVS systems filter their
+    /// depth maps; gtsr-eval's `consistency`). Off by default.
+    #[arg(long)]
+    pub depth_consistency: Option<usize>,
+    /// The neighbouring views (nearest optical axes) that check each view's depth.
+    #[arg(long, default_value_t = 8)]
+    pub consistency_neighbours: usize,
+    /// The consistency tolerance, in pixel footprints.
+    #[arg(long, default_value_t = 1.0)]
+    pub consistency_footprints: f32,
     /// Save a checkpoint every this many steps (0: only at the end or on Ctrl-C).
     #[arg(long, default_value_t = 500)]
     pub checkpoint_every: usize,

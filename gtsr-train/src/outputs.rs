@@ -7,10 +7,12 @@ use anyhow::{Context, Result};
 use glam::Vec3;
 use gtsr_data::Scene;
 use gtsr_data::ply::{TriMesh, write_ply};
-use gtsr_eval::tsdf::{default_truncation, drop_depth_edges, faces_ray, median_pixel_footprint};
+use gtsr_eval::tsdf::{
+    default_truncation, drop_depth_edges, faces_ray, median_pixel_footprint, snap_to_hull,
+};
 use gtsr_eval::{
-    DepthComparison, DepthMetrics, ImageRef, MeshMetrics, MeshRaycaster, Timeline, TsdfVolume,
-    largest_component, psnr, score_against_ground_truth, ssim,
+    ConsistencySettings, DepthComparison, DepthMetrics, DepthView, ImageRef, MeshMetrics,
+    MeshRaycaster, Timeline, TsdfVolume, largest_component, psnr, score_against_ground_truth, ssim,
 };
 use gtsr_model::checkpoint::write_atomic;
 use gtsr_model::export::write_splat_ply;
@@ -28,6 +30,9 @@ pub struct MeshSettings {
     pub voxel: Option<f32>,
     /// Truncation distance.
     pub truncation: Option<f32>,
+    /// Truncation distance in training-pixel footprints at the mesh box's centre (ignored
+    /// with [`MeshSettings::truncation`]).
+    pub truncation_footprints: Option<f32>,
     /// The training views at the fusion resolution (cameras and masks), rendered again for the
     /// mesh; empty: the training views as trained.
     pub fusion_views: Vec<gtsr_data::View>,
@@ -39,6 +44,15 @@ pub struct MeshSettings {
     /// this value ([`Model::render_depth_crossing`]; 0.5: the median depth) instead of the
     /// blended unbiased depth. The test-view depth metrics then measure this depth too.
     pub depth_crossing: Option<f64>,
+    /// Inside the hull where no depth was fused, the hull's own distance instead of
+    /// `-truncation` ([`TsdfVolume::with_hull_inside_distance`]).
+    pub hull_inside_distance: bool,
+    /// Replace the depth samples that lie less than this many pixel footprints behind the
+    /// masks' hull by the hull's depth ([`gtsr_eval::tsdf::snap_to_hull`]); needs carving.
+    pub snap_to_hull: Option<f32>,
+    /// Keep only the depth samples that neighbouring views agree with
+    /// ([`gtsr_eval::consistency`]); `None`: every sample.
+    pub consistency: Option<ConsistencySettings>,
     /// The mesh box from the masks ([`hull_bounds`], computed once per run); `None`: from the
     /// surface Gaussians at each extraction.
     pub bounds: Option<(Vec3, Vec3)>,
@@ -163,71 +177,134 @@ pub fn extract_mesh(
     if !(settings.fuse_depth || (masked && settings.silhouette_carving)) {
         anyhow::bail!("fusing silhouettes alone needs a mask on every training view and carving");
     }
-    let trunc = settings
-        .truncation
-        .unwrap_or_else(|| {
-            let footprint = median_pixel_footprint(cameras.iter().copied(), 0.5 * (lo + hi));
-            default_truncation(radius, footprint, free_space_votes)
-        })
-        .max(voxel);
+    let footprint = || median_pixel_footprint(cameras.iter().copied(), 0.5 * (lo + hi));
+    let trunc = match (settings.truncation, settings.truncation_footprints) {
+        (Some(t), _) => t,
+        (None, Some(f)) => f * footprint(),
+        (None, None) => default_truncation(radius, footprint(), free_space_votes),
+    }
+    .max(voxel);
     let mut tsdf = TsdfVolume::new(lo, hi, voxel, trunc)?;
     if settings.silhouette_carving && masked {
         // The object lies inside every mask: the surface stays inside the masks' hull.
         tsdf = tsdf.with_silhouette_carving();
+        if settings.hull_inside_distance {
+            tsdf = tsdf.with_hull_inside_distance();
+        }
     }
-    for (k, data) in host_views.iter().enumerate() {
-        if !settings.fuse_depth {
-            // Silhouettes alone (every view has a mask, checked above): nothing to render.
+    if !settings.fuse_depth {
+        // Silhouettes alone (every view has a mask, checked above): nothing to render.
+        for data in &host_views {
             let n = data.camera.width as usize * data.camera.height as usize;
             tsdf.integrate(&data.camera, &vec![0.0; n], data.mask.as_deref())?;
-            continue;
         }
-        let (g, rays) = if settings.fusion_views.is_empty() {
-            let v = &trainer.views[k];
-            (
-                fusion_geometry(&trainer.model, &v.camera, &v.rays, settings)?,
-                v.rays.clone(),
-            )
-        } else {
-            let device = trainer.views[0].rays.device();
-            let camera = kernel_camera(&data.camera, &data.name)?;
-            let rays = pixel_rays(&camera, &device);
-            (
-                fusion_geometry(&trainer.model, &camera, &rays, settings)?,
-                rays,
-            )
-        };
-        let normal = host_vec(g.normal);
-        let rays = host_vec(rays);
-        let mut depth = host_vec(g.depth);
-        let cov = host_vec(g.coverage);
-        // Grazing pixels: their unbiased depth runs far behind the surface ([`faces_ray`]).
-        for (p, d) in depth.iter_mut().enumerate() {
-            let n = Vec3::from_slice(&normal[3 * p..3 * p + 3]);
-            let r = Vec3::from_slice(&rays[3 * p..3 * p + 3]);
-            if !faces_ray(n, r) {
-                *d = 0.0;
-            }
+        return Ok(largest_component(&tsdf.extract_mesh()));
+    }
+    let mut maps = Vec::with_capacity(host_views.len());
+    for (k, data) in host_views.iter().enumerate() {
+        maps.push(fusion_depth(trainer, k, data, settings)?);
+    }
+    if let Some(c) = &settings.consistency {
+        let views: Vec<DepthView> = host_views
+            .iter()
+            .zip(&maps)
+            .map(|(v, (depth, _))| DepthView {
+                camera: &v.camera,
+                depth,
+            })
+            .collect();
+        let (filtered, stats) = gtsr_eval::filter_consistent(&views, c)?;
+        if !coarse {
+            println!(
+                "depth consistency ({} of {} neighbours within {} footprints): dropped {} of {} \
+                 samples",
+                c.min_agree, c.neighbours, c.footprints, stats.dropped, stats.samples
+            );
         }
-        let mask: Vec<f32> = match &data.mask {
-            Some(m) => m.clone(),
-            None => cov
-                .iter()
-                .map(|c| if *c >= 0.5 { 1.0 } else { 0.0 })
-                .collect(),
-        };
-        for (d, (c, m)) in depth.iter_mut().zip(cov.iter().zip(&mask)) {
-            if *c < 0.5 || *m < 0.5 || !d.is_finite() {
-                *d = 0.0;
-            }
+        for ((depth, _), f) in maps.iter_mut().zip(filtered) {
+            *depth = f;
         }
-        let plane = host_vec(g.plane);
-        let (w, h) = (data.camera.width as usize, data.camera.height as usize);
-        drop_depth_edges(&mut depth, &normal, &plane, &rays, w, h, data.camera.fx)
-            .with_context(|| format!("dropping the depth edges of {}", data.name))?;
-        tsdf.integrate(&data.camera, &depth, free_space_votes.then_some(&mask[..]))?;
+    }
+    if let Some(f) = settings.snap_to_hull {
+        if !(masked && settings.silhouette_carving) {
+            anyhow::bail!("snapping the depth to the hull needs masks and silhouette carving");
+        }
+        // The hull from every mask first (depth 0 measures nothing), then each view's depth
+        // against it.
+        for (data, (depth, mask)) in host_views.iter().zip(&maps) {
+            tsdf.integrate(&data.camera, &vec![0.0; depth.len()], Some(mask))?;
+        }
+        let (mut snapped, mut samples) = (0, 0);
+        for (data, (depth, _)) in host_views.iter().zip(maps.iter_mut()) {
+            let hull = tsdf
+                .hull_depth(&data.camera)
+                .context("silhouette carving is on, so the volume has a hull")?;
+            samples += depth.iter().filter(|d| **d > 0.0).count();
+            snapped += snap_to_hull(depth, &hull, data.camera.fx, f)?;
+        }
+        if !coarse {
+            println!("snapped to the hull (within {f} footprints): {snapped} of {samples} samples");
+        }
+    }
+    for (data, (depth, mask)) in host_views.iter().zip(&maps) {
+        tsdf.integrate(&data.camera, depth, free_space_votes.then_some(&mask[..]))?;
     }
     Ok(largest_component(&tsdf.extract_mesh()))
+}
+
+/// One fusion view's depth map as fused (zero where not fused: grazing, outside the mask or
+/// without masks the coverage, on a depth edge) and its mask (without masks, the coverage at
+/// least 0.5). `k` indexes the trainer's views when [`MeshSettings::fusion_views`] is empty.
+fn fusion_depth(
+    trainer: &Trainer,
+    k: usize,
+    data: &gtsr_data::View,
+    settings: &MeshSettings,
+) -> Result<(Vec<f32>, Vec<f32>)> {
+    let (g, rays) = if settings.fusion_views.is_empty() {
+        let v = &trainer.views[k];
+        (
+            fusion_geometry(&trainer.model, &v.camera, &v.rays, settings)?,
+            v.rays.clone(),
+        )
+    } else {
+        let device = trainer.views[0].rays.device();
+        let camera = kernel_camera(&data.camera, &data.name)?;
+        let rays = pixel_rays(&camera, &device);
+        (
+            fusion_geometry(&trainer.model, &camera, &rays, settings)?,
+            rays,
+        )
+    };
+    let normal = host_vec(g.normal);
+    let rays = host_vec(rays);
+    let mut depth = host_vec(g.depth);
+    let cov = host_vec(g.coverage);
+    // Grazing pixels: their unbiased depth runs far behind the surface ([`faces_ray`]).
+    for (p, d) in depth.iter_mut().enumerate() {
+        let n = Vec3::from_slice(&normal[3 * p..3 * p + 3]);
+        let r = Vec3::from_slice(&rays[3 * p..3 * p + 3]);
+        if !faces_ray(n, r) {
+            *d = 0.0;
+        }
+    }
+    let mask: Vec<f32> = match &data.mask {
+        Some(m) => m.clone(),
+        None => cov
+            .iter()
+            .map(|c| if *c >= 0.5 { 1.0 } else { 0.0 })
+            .collect(),
+    };
+    for (d, (c, m)) in depth.iter_mut().zip(cov.iter().zip(&mask)) {
+        if *c < 0.5 || *m < 0.5 || !d.is_finite() {
+            *d = 0.0;
+        }
+    }
+    let plane = host_vec(g.plane);
+    let (w, h) = (data.camera.width as usize, data.camera.height as usize);
+    drop_depth_edges(&mut depth, &normal, &plane, &rays, w, h, data.camera.fx)
+        .with_context(|| format!("dropping the depth edges of {}", data.name))?;
+    Ok((depth, mask))
 }
 
 /// Renders the test views (PSNR/SSIM of C_SH, and of C_PBR when present) and, with a

@@ -365,6 +365,30 @@ pub fn run(args: &Args) -> Result<Outcome> {
     {
         bail!("--depth-crossing must be in (0, 1), got {t}");
     }
+    if let Some(k) = args.depth_consistency
+        && !(k >= 1 && k <= args.consistency_neighbours)
+    {
+        bail!(
+            "--depth-consistency must be in 1..=--consistency-neighbours ({}), got {k}",
+            args.consistency_neighbours
+        );
+    }
+    if !(args.consistency_footprints.is_finite() && args.consistency_footprints > 0.0) {
+        bail!(
+            "--consistency-footprints must be positive, got {}",
+            args.consistency_footprints
+        );
+    }
+    if let Some(f) = args.truncation_footprints
+        && !(f.is_finite() && f > 0.0)
+    {
+        bail!("--truncation-footprints must be positive, got {f}");
+    }
+    if let Some(f) = args.snap_to_hull
+        && !(f.is_finite() && f >= 0.0)
+    {
+        bail!("--snap-to-hull must be a finite number of footprints >= 0, got {f}");
+    }
     if args.silhouettes_only && scene.train.iter().any(|v| v.mask.is_none()) {
         bail!(
             "--silhouettes-only needs a mask on every training view; {} has none on some",
@@ -374,10 +398,20 @@ pub fn run(args: &Args) -> Result<Outcome> {
     let mesh_settings = MeshSettings {
         voxel: args.voxel,
         truncation: args.truncation,
+        truncation_footprints: args.truncation_footprints,
         fusion_views: fusion_views(args, &data_dir, &opts, &scene)?,
         silhouette_carving: !args.no_silhouette_carving,
         fuse_depth: !args.silhouettes_only,
         depth_crossing: args.depth_crossing,
+        snap_to_hull: args.snap_to_hull,
+        hull_inside_distance: args.hull_inside_distance,
+        consistency: args
+            .depth_consistency
+            .map(|min_agree| gtsr_eval::ConsistencySettings {
+                neighbours: args.consistency_neighbours,
+                min_agree,
+                footprints: args.consistency_footprints,
+            }),
         bounds: outputs::hull_bounds(&scene.train)?,
     };
 

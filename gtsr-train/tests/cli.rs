@@ -93,6 +93,35 @@ fn trains_a_tiny_scene_and_writes_every_output() {
         &["--iterations", "40", "--resolution", "24", "--resume"],
     );
     assert!(o.status.success(), "{}", text(&o));
+    // And with the other depth and fusion options.
+    let o = gtsr_train(
+        &scene,
+        &out,
+        &[
+            "--iterations",
+            "40",
+            "--resolution",
+            "24",
+            "--resume",
+            "--depth-crossing",
+            "0.9",
+            "--depth-consistency",
+            "2",
+            "--snap-to-hull",
+            "2",
+            "--truncation",
+            "0.2",
+        ],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let log = text(&o);
+    assert!(log.contains("depth consistency (2 of 8"), "{log}");
+    assert!(
+        log.contains("snapped to the hull (within 2 footprints)"),
+        "{log}"
+    );
+    let mesh = gtsr_data::ply::read_ply(&out.join("mesh.ply")).unwrap();
+    assert!(!mesh.triangles.is_empty());
 }
 
 #[test]
@@ -119,9 +148,15 @@ fn bad_input_is_an_error_naming_the_problem() {
     // An unknown preset and zero iterations, on a good scene.
     let scene = tmp.path().join("scene");
     tiny_scene(&scene);
+    // And mesh settings out of range.
     for (flag, value, word) in [
         ("--preset", "nope", "nope"),
         ("--iterations", "0", "iterations"),
+        ("--depth-crossing", "1.5", "--depth-crossing"),
+        ("--depth-consistency", "0", "--depth-consistency"),
+        ("--depth-consistency", "9", "--depth-consistency"),
+        ("--snap-to-hull", "-1", "--snap-to-hull"),
+        ("--snap-to-hull", "NaN", "--snap-to-hull"),
     ] {
         let o = gtsr_train(&scene, &out, &[flag, value]);
         assert_eq!(o.status.code(), Some(1), "{}", text(&o));

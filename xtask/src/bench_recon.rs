@@ -48,6 +48,18 @@ pub struct BenchReconArgs {
     /// Leave the crossing-depth rows out.
     #[arg(long)]
     pub no_crossing_rows: bool,
+    /// The extra "crossing depth snapped to the hull" row of each run (gtsr-train
+    /// `--depth-crossing T --snap-to-hull S --truncation-footprints F`, with the masks): the
+    /// crossing depth, where it lies less than S footprints behind the masks' hull replaced by
+    /// the hull's, fused with the masks at a truncation of F footprints. S:
+    #[arg(long, default_value_t = 2.0)]
+    pub snap_footprints: f32,
+    /// ... and F.
+    #[arg(long, default_value_t = 4.0)]
+    pub snap_truncation: f32,
+    /// Leave the snapped rows out.
+    #[arg(long)]
+    pub no_snap_rows: bool,
 }
 
 fn target_dir() -> PathBuf {
@@ -320,6 +332,28 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                         label: format!("{method}, crossing depth only (T = {t}, no silhouettes)"),
                     });
                 }
+                if !args.no_snap_rows {
+                    let (t, sf, tf) = (
+                        args.depth_crossing,
+                        args.snap_footprints,
+                        args.snap_truncation,
+                    );
+                    fusions.push(Fusion {
+                        suffix: "crossing-snapped",
+                        flags: vec![
+                            "--depth-crossing".into(),
+                            t.to_string(),
+                            "--snap-to-hull".into(),
+                            sf.to_string(),
+                            "--truncation-footprints".into(),
+                            tf.to_string(),
+                        ],
+                        label: format!(
+                            "{method}, crossing depth snapped to the hull (T = {t}; snap {sf}, \
+                             truncation {tf} footprints; with the masks)"
+                        ),
+                    });
+                }
                 for fusion in fusions {
                     rows.push(derived_row(
                         &exe, scene_dir, &out, &name, method, args, fusion,
@@ -330,20 +364,24 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
         if args.methods.iter().any(|m| m == "full") {
             println!("== {name} / the full model's fusion without its depth");
             let run = args.out.join(&name).join("full");
-            rows.push(derived_row(
-                &exe,
-                scene_dir,
-                &run,
-                &name,
-                "full",
-                args,
+            for fusion in [
                 Fusion {
                     suffix: "silhouettes-only",
                     flags: vec!["--silhouettes-only".into()],
                     label: "masks only, fused as gtsr-train does (the full run's grid, no depth)"
                         .into(),
                 },
-            )?);
+                Fusion {
+                    suffix: "silhouettes-only-inside-distance",
+                    flags: vec!["--silhouettes-only".into(), "--hull-inside-distance".into()],
+                    label: "masks only, the hull's own distance inside (--hull-inside-distance)"
+                        .into(),
+                },
+            ] {
+                rows.push(derived_row(
+                    &exe, scene_dir, &run, &name, "full", args, fusion,
+                )?);
+            }
         }
         println!("== {name} / visual hull");
         rows.push(hull_row(

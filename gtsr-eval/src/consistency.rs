@@ -1,0 +1,343 @@
+//! Multi-view depth consistency: keep a depth sample only where other views' depth maps agree
+//! with it, as multi-view stereo systems filter their depth maps before fusion.
+//!
+//! A TSDF averages its votes, so it is not robust to a few far-off samples: one depth far
+//! behind the surface carves everything in front of it along its ray, within the truncation.
+//! Gaussian-splatting depth has such tails (mixed pixels, a faint front layer that one view
+//! sees through and its neighbours do not). A sample `X` of view `i` (the back-projection of
+//! its depth through the pixel centre) is checked against each of the `neighbours` views whose
+//! optical axes are nearest to view `i`'s: projected into view `j`, at depth `z_j`, it
+//! **agrees** when `j`'s depth at the pixel containing the projection is within `footprints`
+//! pixel footprints of `z_j` (`footprints * z_j / fx_j`). Views that do not see `X` (behind
+//! the camera, outside the image) or hold no depth there do not vote. The sample is kept
+//! when at least `min_agree` neighbours agree.
+//!
+//! The filter reads the unfiltered maps only, so its result does not depend on the order of
+//! the views.
+
+use glam::Vec3;
+use gtsr_data::Camera;
+use rayon::prelude::*;
+
+use crate::error::{EvalError, Result};
+
+/// Settings of [`filter_consistent`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ConsistencySettings {
+    /// How many views, those with the nearest optical axes, check each view.
+    pub neighbours: usize,
+    /// How many of them must agree for a sample to be kept.
+    pub min_agree: usize,
+    /// The agreement tolerance, in the checking view's pixel footprints at the sample.
+    pub footprints: f32,
+}
+
+impl Default for ConsistencySettings {
+    /// Eight neighbours, two agreeing, within one footprint.
+    fn default() -> Self {
+        Self {
+            neighbours: 8,
+            min_agree: 2,
+            footprints: 1.0,
+        }
+    }
+}
+
+impl ConsistencySettings {
+    fn check(&self) -> Result<()> {
+        if self.neighbours == 0 || self.min_agree == 0 || self.min_agree > self.neighbours {
+            return Err(EvalError::InvalidArgument(format!(
+                "depth consistency needs 1 <= min_agree ({}) <= neighbours ({})",
+                self.min_agree, self.neighbours
+            )));
+        }
+        if !(self.footprints.is_finite() && self.footprints > 0.0) {
+            return Err(EvalError::InvalidArgument(format!(
+                "depth consistency tolerance must be positive and finite, got {} footprints",
+                self.footprints
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// One view's depth map: z-depth per pixel (row-major `width x height` of the camera; `<= 0`
+/// or non-finite: none).
+#[derive(Clone, Copy, Debug)]
+pub struct DepthView<'a> {
+    /// The view's camera.
+    pub camera: &'a Camera,
+    /// The depth map.
+    pub depth: &'a [f32],
+}
+
+/// What [`filter_consistent`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ConsistencyStats {
+    /// Samples with a depth before the filter.
+    pub samples: usize,
+    /// Samples dropped.
+    pub dropped: usize,
+}
+
+/// The indices of the `k` views whose optical axes are nearest to view `i`'s (largest dot
+/// product of the viewing directions; ties by index), `i` left out.
+pub fn nearest_views(cameras: &[&Camera], i: usize, k: usize) -> Vec<usize> {
+    let a = cameras[i].forward();
+    let mut others: Vec<(f32, usize)> = (0..cameras.len())
+        .filter(|&j| j != i)
+        .map(|j| (-a.dot(cameras[j].forward()), j))
+        .collect();
+    others.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+    others.into_iter().take(k).map(|(_, j)| j).collect()
+}
+
+/// Filters every view's depth map against its neighbours' (module documentation), returning
+/// the filtered maps (dropped samples set to `0`) in the order given, and the counts. Errors
+/// on a map of the wrong size, invalid settings, or a non-invertible camera.
+pub fn filter_consistent(
+    views: &[DepthView<'_>],
+    settings: &ConsistencySettings,
+) -> Result<(Vec<Vec<f32>>, ConsistencyStats)> {
+    settings.check()?;
+    for (k, v) in views.iter().enumerate() {
+        let n = v.camera.width as usize * v.camera.height as usize;
+        if v.depth.len() != n {
+            return Err(EvalError::size(
+                &format!("depth map of view {k}"),
+                format!("{}x{} = {n}", v.camera.width, v.camera.height),
+                v.depth.len(),
+            ));
+        }
+        if v.camera.world_to_camera.matrix3.determinant().abs() < 1e-12 {
+            return Err(EvalError::InvalidArgument(format!(
+                "view {k}: the camera's rotation is singular"
+            )));
+        }
+    }
+    let cameras: Vec<&Camera> = views.iter().map(|v| v.camera).collect();
+    let k = settings.neighbours.min(views.len().saturating_sub(1));
+    let filtered: Vec<(Vec<f32>, usize, usize)> = (0..views.len())
+        .into_par_iter()
+        .map(|i| {
+            let near = nearest_views(&cameras, i, k);
+            filter_view(views, i, &near, settings)
+        })
+        .collect();
+    let mut stats = ConsistencyStats::default();
+    let maps = filtered
+        .into_iter()
+        .map(|(m, s, d)| {
+            stats.samples += s;
+            stats.dropped += d;
+            m
+        })
+        .collect();
+    Ok((maps, stats))
+}
+
+/// One view's filtered map, its sample count and how many it dropped.
+fn filter_view(
+    views: &[DepthView<'_>],
+    i: usize,
+    near: &[usize],
+    settings: &ConsistencySettings,
+) -> (Vec<f32>, usize, usize) {
+    let view = views[i];
+    let cam = view.camera;
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let to_world = cam.world_to_camera.inverse();
+    let mut out = view.depth.to_vec();
+    let (mut samples, mut dropped) = (0, 0);
+    for y in 0..h {
+        for x in 0..w {
+            let p = y * w + x;
+            let d = view.depth[p];
+            if !(d.is_finite() && d > 0.0) {
+                continue;
+            }
+            samples += 1;
+            let ray = Vec3::new(
+                (x as f32 + 0.5 - cam.cx) / cam.fx,
+                (y as f32 + 0.5 - cam.cy) / cam.fy,
+                1.0,
+            );
+            let world = to_world.transform_point3(ray * d);
+            let agree = near
+                .iter()
+                .filter(|&&j| agrees(&views[j], world, settings.footprints))
+                .count();
+            if agree < settings.min_agree {
+                out[p] = 0.0;
+                dropped += 1;
+            }
+        }
+    }
+    (out, samples, dropped)
+}
+
+/// Whether view `other` holds a depth within `footprints` pixel footprints of the point's.
+fn agrees(other: &DepthView<'_>, world: Vec3, footprints: f32) -> bool {
+    let c = other.camera;
+    let p = c.world_to_camera.transform_point3(world);
+    if p.z <= 1e-8 {
+        return false;
+    }
+    let u = c.fx * p.x / p.z + c.cx;
+    let v = c.fy * p.y / p.z + c.cy;
+    let (w, h) = (c.width as f32, c.height as f32);
+    if !(u >= 0.0 && v >= 0.0 && u < w && v < h) {
+        return false;
+    }
+    let q = (v as usize).min(c.height as usize - 1) * c.width as usize
+        + (u as usize).min(c.width as usize - 1);
+    let dq = other.depth[q];
+    dq.is_finite() && dq > 0.0 && (dq - p.z).abs() <= footprints * p.z / c.fx
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A camera at `eye` looking at the origin, 32 x 32 px, 60 degrees across.
+    fn camera(eye: Vec3) -> Camera {
+        Camera::look_at(eye, Vec3::ZERO, Vec3::Y, 60f32.to_radians(), 32, 32)
+    }
+
+    /// The z-depth of the sphere of radius `r` at the origin through each pixel centre.
+    fn sphere_depth(c: &Camera, r: f32) -> Vec<f32> {
+        let to_world = c.world_to_camera.inverse();
+        let eye = to_world.transform_point3(Vec3::ZERO);
+        let mut out = vec![0.0; 32 * 32];
+        for y in 0..32 {
+            for x in 0..32 {
+                let ray = Vec3::new(
+                    (x as f32 + 0.5 - c.cx) / c.fx,
+                    (y as f32 + 0.5 - c.cy) / c.fy,
+                    1.0,
+                );
+                let dir = to_world.transform_vector3(ray);
+                // |eye + t dir| = r, t in units of the ray (z-depth, as ray.z = 1).
+                let (a, b, cc) = (dir.dot(dir), 2.0 * eye.dot(dir), eye.dot(eye) - r * r);
+                let disc = b * b - 4.0 * a * cc;
+                if disc > 0.0 {
+                    out[y * 32 + x] = (-b - disc.sqrt()) / (2.0 * a);
+                }
+            }
+        }
+        out
+    }
+
+    fn ring(n: usize) -> Vec<Camera> {
+        (0..n)
+            .map(|k| {
+                let a = k as f32 / n as f32 * std::f32::consts::TAU;
+                camera(Vec3::new(3.0 * a.cos(), 0.5, 3.0 * a.sin()))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn exact_depth_is_kept_and_an_outlier_dropped() {
+        let cams = ring(12);
+        let mut maps: Vec<Vec<f32>> = cams.iter().map(|c| sphere_depth(c, 0.8)).collect();
+        // One sample of view 0 far behind the surface, one in front of it.
+        let centre = 16 * 32 + 16;
+        assert!(maps[0][centre] > 0.0);
+        maps[0][centre] += 0.5;
+        maps[0][centre + 1] -= 0.3;
+        let views: Vec<DepthView> = cams
+            .iter()
+            .zip(&maps)
+            .map(|(camera, depth)| DepthView { camera, depth })
+            .collect();
+        let settings = ConsistencySettings::default();
+        let (out, stats) = filter_consistent(&views, &settings).unwrap();
+        assert_eq!(out[0][centre], 0.0, "the far sample is dropped");
+        assert_eq!(out[0][centre + 1], 0.0, "the near sample is dropped");
+        // Everything else on the sphere is kept but a few grazing samples at the rim.
+        assert!(stats.samples > 12 * 150, "{stats:?}");
+        assert!(
+            (stats.dropped as f32) < 0.1 * stats.samples as f32,
+            "too many exact samples dropped: {stats:?}"
+        );
+        for (a, b) in out.iter().flatten().zip(maps.iter().flatten()) {
+            assert!(*a == 0.0 || a == b, "kept samples are unchanged");
+        }
+        // Order of the views does not matter.
+        let reversed: Vec<DepthView> = views.iter().rev().copied().collect();
+        let (back, stats_back) = filter_consistent(&reversed, &settings).unwrap();
+        assert_eq!(stats, stats_back);
+        assert_eq!(back[11], out[0]);
+    }
+
+    #[test]
+    fn a_shifted_view_disagrees_with_its_neighbours() {
+        let cams = ring(12);
+        let mut maps: Vec<Vec<f32>> = cams.iter().map(|c| sphere_depth(c, 0.8)).collect();
+        for d in maps[3].iter_mut().filter(|d| **d > 0.0) {
+            *d += 0.4;
+        }
+        let views: Vec<DepthView> = cams
+            .iter()
+            .zip(&maps)
+            .map(|(camera, depth)| DepthView { camera, depth })
+            .collect();
+        let (out, _) = filter_consistent(&views, &ConsistencySettings::default()).unwrap();
+        let kept = out[3].iter().filter(|d| **d > 0.0).count();
+        let had = maps[3].iter().filter(|d| **d > 0.0).count();
+        // Near the rim a sample shifted along its grazing ray stays near the sphere; the rest
+        // (the centre included) go.
+        assert!(kept * 5 < had, "kept {kept} of {had}");
+        assert_eq!(out[3][16 * 32 + 16], 0.0);
+    }
+
+    #[test]
+    fn neighbours_are_the_nearest_axes() {
+        let cams = ring(12);
+        let refs: Vec<&Camera> = cams.iter().collect();
+        let mut near = nearest_views(&refs, 0, 2);
+        near.sort();
+        assert_eq!(near, vec![1, 11]);
+        assert_eq!(nearest_views(&refs, 5, 4).len(), 4);
+    }
+
+    #[test]
+    fn bad_settings_and_sizes_are_errors() {
+        let cams = ring(3);
+        let maps: Vec<Vec<f32>> = cams.iter().map(|c| sphere_depth(c, 0.8)).collect();
+        let views: Vec<DepthView> = cams
+            .iter()
+            .zip(&maps)
+            .map(|(camera, depth)| DepthView { camera, depth })
+            .collect();
+        for bad in [
+            ConsistencySettings {
+                min_agree: 3,
+                neighbours: 2,
+                footprints: 1.0,
+            },
+            ConsistencySettings {
+                min_agree: 0,
+                ..Default::default()
+            },
+            ConsistencySettings {
+                footprints: f32::NAN,
+                ..Default::default()
+            },
+            ConsistencySettings {
+                footprints: 0.0,
+                ..Default::default()
+            },
+        ] {
+            assert!(filter_consistent(&views, &bad).is_err(), "{bad:?}");
+        }
+        let short = [0.0f32; 5];
+        let views = [DepthView {
+            camera: &cams[0],
+            depth: &short,
+        }];
+        let err = filter_consistent(&views, &ConsistencySettings::default()).unwrap_err();
+        assert!(err.to_string().contains("depth map of view 0"), "{err}");
+    }
+}
