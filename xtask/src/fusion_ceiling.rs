@@ -58,6 +58,10 @@ pub struct FusionCeilingArgs {
     /// depth blend two surfaces at an occlusion boundary.
     #[arg(long)]
     pub keep_edges: bool,
+    /// With carving, keep the hull field's own distance inside the hull where no depth was
+    /// fused (gtsr-train's `--hull-inside-distance`).
+    #[arg(long)]
+    pub hull_inside_distance: bool,
 }
 
 /// One fusion: the label, whether the masks carve, whether depth is fused, the truncation,
@@ -222,6 +226,9 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
         let mut tsdf = TsdfVolume::new(lo, hi, voxel, var.truncation)?;
         if var.carving {
             tsdf = tsdf.with_silhouette_carving();
+            if args.hull_inside_distance {
+                tsdf = tsdf.with_hull_inside_distance();
+            }
         }
         for (v, d) in scene.train.iter().zip(&depths) {
             // Depth 0 is no measurement and stays so; the rest move by the bias.
