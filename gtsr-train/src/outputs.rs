@@ -246,8 +246,11 @@ pub fn extract_mesh(
             println!("snapped to the hull (within {f} footprints): {snapped} of {samples} samples");
         }
     }
+    // After snapping the hull holds every mask already; a pixel outside its mask has no depth
+    // (`fusion_depth`) and with carving casts no TSDF vote, so the masks need not come again.
+    let masks_pending = settings.snap_to_hull.is_none() && free_space_votes;
     for (data, (depth, mask)) in host_views.iter().zip(&maps) {
-        tsdf.integrate(&data.camera, depth, free_space_votes.then_some(&mask[..]))?;
+        tsdf.integrate(&data.camera, depth, masks_pending.then_some(&mask[..]))?;
     }
     Ok(largest_component(&tsdf.extract_mesh()))
 }

@@ -5,6 +5,9 @@ use std::process::{Command, Output};
 
 use gtsr_data::synthetic::{MaterialPreset, SceneConfig, ShapeKind, generate_scene};
 
+/// The tiny run's schedule: every call on one run passes it (so `--resume` finds it finished).
+const TINY_RUN: [&str; 4] = ["--iterations", "40", "--resolution", "24"];
+
 /// Runs gtsr-train on `data` with outputs in `out`, plus `args`.
 fn gtsr_train(data: &Path, out: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_gtsr-train"))
@@ -46,15 +49,10 @@ fn trains_a_tiny_scene_and_writes_every_output() {
         &scene,
         &out,
         &[
-            "--iterations",
-            "40",
-            "--resolution",
-            "24",
-            "--eval-points",
-            "2",
-            "--checkpoint-every",
-            "0",
-        ],
+            &TINY_RUN[..],
+            &["--eval-points", "2", "--checkpoint-every", "0"],
+        ]
+        .concat(),
     );
     assert!(o.status.success(), "{}", text(&o));
     for f in [
@@ -87,31 +85,27 @@ fn trains_a_tiny_scene_and_writes_every_output() {
     assert!(!mesh.triangles.is_empty());
 
     // --resume on a finished run re-extracts and re-evaluates without training further.
-    let o = gtsr_train(
-        &scene,
-        &out,
-        &["--iterations", "40", "--resolution", "24", "--resume"],
-    );
+    let o = gtsr_train(&scene, &out, &[&TINY_RUN[..], &["--resume"]].concat());
     assert!(o.status.success(), "{}", text(&o));
     // And with the other depth and fusion options.
     let o = gtsr_train(
         &scene,
         &out,
         &[
-            "--iterations",
-            "40",
-            "--resolution",
-            "24",
-            "--resume",
-            "--depth-crossing",
-            "0.9",
-            "--depth-consistency",
-            "2",
-            "--snap-to-hull",
-            "2",
-            "--truncation",
-            "0.2",
-        ],
+            &TINY_RUN[..],
+            &[
+                "--resume",
+                "--depth-crossing",
+                "0.9",
+                "--depth-consistency",
+                "2",
+                "--snap-to-hull",
+                "2",
+                "--truncation",
+                "0.2",
+            ],
+        ]
+        .concat(),
     );
     assert!(o.status.success(), "{}", text(&o));
     let log = text(&o);
