@@ -31,6 +31,6 @@ pub use metrics::{
     ImageRef, MeshMetrics, SCORE_SAMPLES, SEEN_MIN_EYES, chamfer, chamfer_seen,
     chamfer_seen_and_whole, psnr, score_against_ground_truth, ssim,
 };
-pub use report::{ReportRow, markdown_table};
+pub use report::{ReportRow, markdown_table, seed_summary_table};
 pub use timeline::{Timeline, TimelinePoint, plot_png};
 pub use tsdf::{TsdfVolume, default_voxel_for_radius};

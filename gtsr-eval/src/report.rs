@@ -107,3 +107,107 @@ pub fn markdown_table(rows: &[ReportRow]) -> String {
 pub fn write_markdown(path: &Path, rows: &[ReportRow]) -> Result<()> {
     write_atomic(path, markdown_table(rows).as_bytes())
 }
+
+/// `mean ± sd` of `values` (the sample standard deviation, over `n - 1`), each scaled by
+/// `scale` and printed by `f`; the mean alone for one value, `-` for none.
+fn mean_sd(values: &[f64], scale: f64, f: impl Fn(f64) -> String) -> String {
+    let v: Vec<f64> = values
+        .iter()
+        .map(|x| x * scale)
+        .filter(|x| x.is_finite())
+        .collect();
+    match v.len() {
+        0 => "-".into(),
+        1 => f(v[0]),
+        n => {
+            let mean = v.iter().sum::<f64>() / n as f64;
+            let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+            format!("{} ± {}", f(mean), f(var.sqrt()).trim_start_matches('+'))
+        }
+    }
+}
+
+/// Over the seeds both `a` and `b` ran: how many seeds `a`'s value of `get` is the smaller,
+/// out of how many, as `k/n` (`-` when they share no seed with a value).
+fn paired_wins(
+    a: &[(u64, &ReportRow)],
+    b: &[(u64, &ReportRow)],
+    get: impl Fn(&ReportRow) -> Option<f64>,
+) -> String {
+    let (mut wins, mut n) = (0, 0);
+    for (seed, ra) in a {
+        let Some(va) = get(ra).filter(|v| v.is_finite()) else {
+            continue;
+        };
+        if let Some(vb) = b
+            .iter()
+            .find(|(s, _)| s == seed)
+            .and_then(|(_, rb)| get(rb))
+            .filter(|v| v.is_finite())
+        {
+            n += 1;
+            wins += usize::from(va < vb);
+        }
+    }
+    if n == 0 {
+        "-".into()
+    } else {
+        format!("{wins}/{n}")
+    }
+}
+
+/// The same methods trained with several seeds, summarised: per method and scene (in the
+/// order they first appear in `rows`, `(seed, row)` pairs), the number of seeds and the
+/// `mean ± sd` over them of the depth error, depth bias, normal error, chamfer (x 1e3),
+/// PSNR, SSIM and time; and, against `reference` on the same scene and seed, in how many
+/// seeds the reference's depth error and normal error are the smaller (`k/n`: the reference
+/// ahead in k of the n seeds both ran).
+pub fn seed_summary_table(rows: &[(u64, ReportRow)], reference: &str) -> String {
+    // ((scene, method), the group's (seed, row) pairs).
+    type Group<'a> = ((&'a str, &'a str), Vec<(u64, &'a ReportRow)>);
+    let mut groups: Vec<Group> = Vec::new();
+    for (seed, r) in rows {
+        let key = (r.scene.as_str(), r.method.as_str());
+        match groups.iter_mut().find(|(k, _)| *k == key) {
+            Some((_, g)) => g.push((*seed, r)),
+            None => groups.push((key, vec![(*seed, r)])),
+        }
+    }
+    let mut s = format!(
+        "| method | scene | seeds | depth err x1e3 | depth bias x1e3 | normal err (deg) | \
+         chamfer x1e3 | PSNR | SSIM | time | {reference} ahead on depth err | \
+         {reference} ahead on normal err |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        reference = cell(reference)
+    );
+    for ((scene, method), g) in &groups {
+        let col = |get: fn(&ReportRow) -> Option<f64>| -> Vec<f64> {
+            g.iter().filter_map(|(_, r)| get(r)).collect()
+        };
+        let refs = groups
+            .iter()
+            .find(|((sc, m), _)| sc == scene && *m == reference)
+            .map(|(_, g)| g.as_slice());
+        let wins = |get: fn(&ReportRow) -> Option<f64>| match refs {
+            Some(rg) if *method != reference => paired_wins(rg, g, get),
+            _ => "-".into(),
+        };
+        let seeds: Vec<String> = g.iter().map(|(sd, _)| sd.to_string()).collect();
+        s.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            cell(method),
+            cell(scene),
+            seeds.join(", "),
+            mean_sd(&col(|r| r.depth_err), 1e3, |v| format!("{v:.2}")),
+            mean_sd(&col(|r| r.depth_bias), 1e3, |v| format!("{v:+.2}")),
+            mean_sd(&col(|r| r.normal_err_deg), 1.0, |v| format!("{v:.1}")),
+            mean_sd(&col(|r| r.chamfer), 1e3, |v| format!("{v:.2}")),
+            mean_sd(&col(|r| r.psnr), 1.0, |v| format!("{v:.2}")),
+            mean_sd(&col(|r| r.ssim), 1.0, |v| format!("{v:.4}")),
+            mean_sd(&col(|r| r.seconds), 1.0, format_duration),
+            wins(|r| r.depth_err),
+            wins(|r| r.normal_err_deg),
+        ));
+    }
+    s
+}

@@ -1,4 +1,6 @@
-use gtsr_eval::report::{ReportRow, format_duration, markdown_table, write_markdown};
+use gtsr_eval::report::{
+    ReportRow, format_duration, markdown_table, seed_summary_table, write_markdown,
+};
 use gtsr_eval::timeline::{Timeline, TimelinePoint, plot_png};
 
 fn timeline(label: &str, scale: f64, with_chamfer: bool) -> Timeline {
@@ -105,4 +107,49 @@ fn markdown_table_formats_and_escapes() {
     let p = dir.path().join("r.md");
     write_markdown(&p, &rows).unwrap();
     assert_eq!(std::fs::read_to_string(&p).unwrap(), t);
+}
+
+#[test]
+fn seed_summary_gives_mean_spread_and_paired_wins() {
+    let row =
+        |method: &str, scene: &str, d: f64, b: Option<f64>, n: Option<f64>, t: f64| ReportRow {
+            method: method.into(),
+            scene: scene.into(),
+            depth_err: Some(d),
+            depth_bias: b,
+            normal_err_deg: n,
+            psnr: Some(30.0 + t / 60.0 - 1.0),
+            ssim: Some(0.99),
+            seconds: Some(t),
+            ..Default::default()
+        };
+    let rows = vec![
+        (0, row("full", "s", 0.010, Some(-0.001), Some(5.0), 60.0)),
+        (0, row("pgsr", "s", 0.011, None, Some(8.0), 60.0)),
+        (1, row("full", "s", 0.012, Some(0.001), Some(6.0), 120.0)),
+        (1, row("pgsr", "s", 0.011, None, None, 60.0)),
+        (2, row("full", "s", 0.014, Some(0.003), Some(7.0), 180.0)),
+        (0, row("pgsr", "t", 0.02, None, Some(1.0), 60.0)),
+    ];
+    let t = seed_summary_table(&rows, "full");
+    let lines: Vec<&str> = t.lines().collect();
+    assert_eq!(lines.len(), 5, "{t}");
+    assert!(lines[0].contains("full ahead on depth err"));
+    assert_eq!(
+        lines[2],
+        "| full | s | 0, 1, 2 | 12.00 ± 2.00 | +1.00 ± 2.00 | 6.0 ± 1.0 | - | 31.00 ± 1.00 | \
+         0.9900 ± 0.0000 | 2:00 ± 1:00 | - | - |"
+    );
+    // pgsr against full, seed by seed: depth 0.010 < 0.011 (seed 0) but 0.012 > 0.011
+    // (seed 1); normals only where both have one (seed 0).
+    assert_eq!(
+        lines[3],
+        "| pgsr | s | 0, 1 | 11.00 ± 0.00 | - | 8.0 | - | 30.00 ± 0.00 | 0.9900 ± 0.0000 | \
+         1:00 ± 0:00 | 1/2 | 1/1 |"
+    );
+    // No reference run on scene t.
+    assert_eq!(
+        lines[4],
+        "| pgsr | t | 0 | 20.00 | - | 1.0 | - | 30.00 | 0.9900 | 1:00 | - | - |"
+    );
 }

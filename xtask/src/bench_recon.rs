@@ -11,7 +11,8 @@ use clap::Args;
 use gtsr_data::ply::TriMesh;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_eval::{
-    ReportRow, Timeline, markdown_table, plot_png, score_against_ground_truth, visual_hull,
+    ReportRow, Timeline, markdown_table, plot_png, score_against_ground_truth, seed_summary_table,
+    visual_hull,
 };
 
 /// Options of `bench-recon`.
@@ -60,6 +61,16 @@ pub struct BenchReconArgs {
     /// Leave the snapped rows out.
     #[arg(long)]
     pub no_snap_rows: bool,
+    /// Training seeds (gtsr-train `--seed`): every method is trained once per seed, seed 0 in
+    /// `{scene}/{method}`, another seed N in `{scene}/{method}-seed{N}`. With any seed but 0
+    /// the rows name their seed, and a second table gives each method's mean and spread over
+    /// the seeds and in how many of them the full model's depth and normals were the better.
+    #[arg(long, num_args = 1.., default_values_t = [0u64])]
+    pub seeds: Vec<u64>,
+    /// Only the trained runs' rows: no other fusions of them, no masks-only rows and no
+    /// visual hull (for seed studies of the training).
+    #[arg(long)]
+    pub training_only: bool,
 }
 
 fn target_dir() -> PathBuf {
@@ -196,7 +207,7 @@ struct Fusion<'a> {
     label: String,
 }
 
-/// The same trained model fused differently, in a copy of the run (`{method}-{suffix}`, with
+/// The same trained model fused differently, in a copy of the run (`{run}-{suffix}`, with
 /// gtsr-train's `flag`): `--no-silhouette-carving` fuses the depth maps alone (how much of the
 /// mesh the rendered depth carries on its own), `--silhouettes-only` the masks alone on the
 /// same grid (what the depth adds to them).
@@ -213,7 +224,10 @@ fn derived_row(
         label,
     }: Fusion,
 ) -> Result<ReportRow> {
-    let out = run.with_file_name(format!("{method}-{suffix}"));
+    let run_name = run
+        .file_name()
+        .map_or_else(|| method.to_string(), |n| n.to_string_lossy().into_owned());
+    let out = run.with_file_name(format!("{run_name}-{suffix}"));
     if out.exists() {
         std::fs::remove_dir_all(&out).with_context(|| format!("removing {}", out.display()))?;
     }
@@ -254,8 +268,32 @@ fn derived_row(
     })
 }
 
+/// The table (and with seeds other than 0 the seed summary) written to `bench-recon.md`,
+/// atomically: after every row, so an interrupted benchmark keeps what it finished.
+fn write_report(
+    args: &BenchReconArgs,
+    rows: &[ReportRow],
+    trained: &[(u64, ReportRow)],
+) -> Result<String> {
+    let mut text = markdown_table(rows);
+    if args.seeds != [0] {
+        text.push_str(
+            "\nOver the seeds (mean ± sample standard deviation; the last two columns: in how \
+             many of the seeds both ran the full model had the smaller error):\n\n",
+        );
+        text.push_str(&seed_summary_table(trained, "full"));
+    }
+    let md = args.out.join("bench-recon.md");
+    gtsr_data::image_io::write_atomic(&md, text.as_bytes())
+        .with_context(|| format!("writing {}", md.display()))?;
+    Ok(text)
+}
+
 /// Runs the benchmark.
 pub fn run(args: &BenchReconArgs) -> Result<()> {
+    if args.seeds.is_empty() {
+        bail!("--seeds needs at least one seed");
+    }
     let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
         .args(["build", "--release", "-p", "gtsr-train"])
         .status()
@@ -267,58 +305,92 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let mut rows = Vec::new();
+    // The trained runs' rows with their seeds and bare method names, for the seed summary.
+    let mut trained: Vec<(u64, ReportRow)> = Vec::new();
     let mut series: Vec<(String, Timeline)> = Vec::new();
+    let named_seeds = args.seeds != [0];
     for scene_dir in &args.data {
         let name = scene_name(scene_dir);
-        for method in &args.methods {
-            let out = args.out.join(&name).join(method);
-            // A finished run of the same length is re-extracted and re-evaluated instead of
-            // trained again (gtsr-train --resume on a finished run).
-            let reuse = args.reuse && finished(&out, args.iterations);
-            println!(
-                "== {name} / {method}{}",
-                if reuse {
-                    " (reusing the trained run)"
+        let mut full_run: Option<PathBuf> = None;
+        for &seed in &args.seeds {
+            for method in &args.methods {
+                let run_dir = if seed == 0 {
+                    method.clone()
                 } else {
-                    ""
+                    format!("{method}-seed{seed}")
+                };
+                let label = if named_seeds {
+                    format!("{method} (seed {seed})")
+                } else {
+                    method.clone()
+                };
+                let out = args.out.join(&name).join(&run_dir);
+                // A finished run of the same length is re-extracted and re-evaluated instead
+                // of trained again (gtsr-train --resume on a finished run).
+                let reuse = args.reuse && finished(&out, args.iterations);
+                println!(
+                    "== {name} / {label}{}",
+                    if reuse {
+                        " (reusing the trained run)"
+                    } else {
+                        ""
+                    }
+                );
+                let seed_arg = seed.to_string();
+                let extra: Vec<&str> = if reuse {
+                    vec!["--resume"]
+                } else {
+                    vec!["--seed", &seed_arg]
+                };
+                let m = run_gtsr_train(
+                    &exe,
+                    scene_dir,
+                    &out,
+                    method,
+                    args,
+                    &extra,
+                    &format!("{name} / {label}"),
+                )?;
+                let row = ReportRow {
+                    method: label.clone(),
+                    scene: name.clone(),
+                    chamfer: m.mesh.as_ref().map(|x| x.chamfer),
+                    chamfer_whole_gt: m.mesh_whole_gt.as_ref().map(|x| x.chamfer),
+                    fscore: m.mesh.as_ref().map(|x| x.fscore),
+                    depth_err: m.test_depth.map(|d| d.depth_median_abs),
+                    depth_bias: m.test_depth.map(|d| d.depth_mean_signed),
+                    normal_err_deg: m.test_depth.map(|d| d.normal_mean_deg),
+                    psnr: Some(m.test_psnr),
+                    ssim: Some(m.test_ssim),
+                    seconds: Some(m.train_seconds),
+                    gaussians: Some(m.surface_gaussians + m.interior_gaussians),
+                    tile_splats_per_step: m
+                        .tile_splats
+                        .filter(|_| m.iterations > 0)
+                        .map(|t| t as f64 / m.iterations as f64),
+                };
+                trained.push((
+                    seed,
+                    ReportRow {
+                        method: method.clone(),
+                        ..row.clone()
+                    },
+                ));
+                rows.push(row);
+                write_report(args, &rows, &trained)?;
+                if let Ok(tl) = Timeline::read_csv(&out.join("error_vs_time.csv")) {
+                    series.push((format!("{name} {label}"), tl));
                 }
-            );
-            let extra: &[&str] = if reuse { &["--resume"] } else { &[] };
-            let m = run_gtsr_train(
-                &exe,
-                scene_dir,
-                &out,
-                method,
-                args,
-                extra,
-                &format!("{name} / {method}"),
-            )?;
-            rows.push(ReportRow {
-                method: method.clone(),
-                scene: name.clone(),
-                chamfer: m.mesh.as_ref().map(|x| x.chamfer),
-                chamfer_whole_gt: m.mesh_whole_gt.as_ref().map(|x| x.chamfer),
-                fscore: m.mesh.as_ref().map(|x| x.fscore),
-                depth_err: m.test_depth.map(|d| d.depth_median_abs),
-                depth_bias: m.test_depth.map(|d| d.depth_mean_signed),
-                normal_err_deg: m.test_depth.map(|d| d.normal_mean_deg),
-                psnr: Some(m.test_psnr),
-                ssim: Some(m.test_ssim),
-                seconds: Some(m.train_seconds),
-                gaussians: Some(m.surface_gaussians + m.interior_gaussians),
-                tile_splats_per_step: m
-                    .tile_splats
-                    .filter(|_| m.iterations > 0)
-                    .map(|t| t as f64 / m.iterations as f64),
-            });
-            if let Ok(tl) = Timeline::read_csv(&out.join("error_vs_time.csv")) {
-                series.push((format!("{name} {method}"), tl));
-            }
-            if m.mesh.is_some() {
+                if method == "full" && full_run.is_none() {
+                    full_run = Some(out.clone());
+                }
+                if args.training_only || m.mesh.is_none() {
+                    continue;
+                }
                 let mut fusions = vec![Fusion {
                     suffix: "depth-only",
                     flags: vec!["--no-silhouette-carving".into()],
-                    label: format!("{method}, depth only (no silhouettes in the fusion)"),
+                    label: format!("{label}, depth only (no silhouettes in the fusion)"),
                 }];
                 if !args.no_crossing_rows {
                     let t = args.depth_crossing;
@@ -329,7 +401,7 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                             "--depth-crossing".into(),
                             t.to_string(),
                         ],
-                        label: format!("{method}, crossing depth only (T = {t}, no silhouettes)"),
+                        label: format!("{label}, crossing depth only (T = {t}, no silhouettes)"),
                     });
                 }
                 if !args.no_snap_rows {
@@ -349,7 +421,7 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                             tf.to_string(),
                         ],
                         label: format!(
-                            "{method}, crossing depth snapped to the hull (T = {t}; snap {sf}, \
+                            "{label}, crossing depth snapped to the hull (T = {t}; snap {sf}, \
                              truncation {tf} footprints; with the masks)"
                         ),
                     });
@@ -358,12 +430,16 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                     rows.push(derived_row(
                         &exe, scene_dir, &out, &name, method, args, fusion,
                     )?);
+                    write_report(args, &rows, &trained)?;
                 }
             }
         }
-        if args.methods.iter().any(|m| m == "full") {
+        if args.training_only {
+            continue;
+        }
+        // The masks alone depend on the full run's grid only, not on its seed: the first one.
+        if let Some(run) = &full_run {
             println!("== {name} / the full model's fusion without its depth");
-            let run = args.out.join(&name).join("full");
             for fusion in [
                 Fusion {
                     suffix: "silhouettes-only",
@@ -379,8 +455,9 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                 },
             ] {
                 rows.push(derived_row(
-                    &exe, scene_dir, &run, &name, "full", args, fusion,
+                    &exe, scene_dir, run, &name, "full", args, fusion,
                 )?);
+                write_report(args, &rows, &trained)?;
             }
         }
         println!("== {name} / visual hull");
@@ -391,16 +468,19 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
             args.resolution,
             args.hull_resolution,
         )?);
+        write_report(args, &rows, &trained)?;
     }
-    let table = markdown_table(&rows);
-    let md = args.out.join("bench-recon.md");
-    std::fs::write(&md, &table).with_context(|| format!("writing {}", md.display()))?;
+    let table = write_report(args, &rows, &trained)?;
     let refs: Vec<(&str, &Timeline)> = series.iter().map(|(n, t)| (n.as_str(), t)).collect();
     let png = args.out.join("error_vs_time.png");
     if !refs.is_empty() {
         plot_png(&png, &refs)?;
     }
     println!("{table}");
-    println!("table {}; plot {}", md.display(), png.display());
+    println!(
+        "table {}; plot {}",
+        args.out.join("bench-recon.md").display(),
+        png.display()
+    );
     Ok(())
 }
