@@ -294,6 +294,14 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
     if args.seeds.is_empty() {
         bail!("--seeds needs at least one seed");
     }
+    if let Some(d) = args
+        .seeds
+        .iter()
+        .enumerate()
+        .find_map(|(i, s)| args.seeds[..i].contains(s).then_some(s))
+    {
+        bail!("--seeds: seed {d} is given twice (each seed trains into one folder)");
+    }
     let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
         .args(["build", "--release", "-p", "gtsr-train"])
         .status()
