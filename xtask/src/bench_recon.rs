@@ -73,6 +73,13 @@ pub struct BenchReconArgs {
     pub training_only: bool,
 }
 
+impl BenchReconArgs {
+    /// Whether rows name their seed and the seed summary is written: any seed but 0 alone.
+    fn names_seeds(&self) -> bool {
+        self.seeds != [0]
+    }
+}
+
 fn target_dir() -> PathBuf {
     std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| PathBuf::from("target"), PathBuf::from)
 }
@@ -92,6 +99,24 @@ struct Metrics {
     /// Absent in runs from before gtsr-train counted them.
     #[serde(default)]
     tile_splats: Option<u64>,
+}
+
+impl Metrics {
+    /// A table row of this run's mesh and test-view geometry (the rest left empty): for the
+    /// crossing-depth fusions the test-view depth is the crossing depth the run fused.
+    fn geometry_row(&self, label: String, scene: &str) -> ReportRow {
+        ReportRow {
+            method: label,
+            scene: scene.into(),
+            chamfer: self.mesh.as_ref().map(|x| x.chamfer),
+            chamfer_whole_gt: self.mesh_whole_gt.as_ref().map(|x| x.chamfer),
+            fscore: self.mesh.as_ref().map(|x| x.fscore),
+            depth_err: self.test_depth.map(|d| d.depth_median_abs),
+            depth_bias: self.test_depth.map(|d| d.depth_mean_signed),
+            normal_err_deg: self.test_depth.map(|d| d.normal_mean_deg),
+            ..ReportRow::default()
+        }
+    }
 }
 
 #[derive(serde::Deserialize)]
@@ -254,17 +279,8 @@ fn derived_row(
         &format!("{name} / {method} {suffix}"),
     )?;
     Ok(ReportRow {
-        method: label,
-        scene: name.into(),
-        chamfer: m.mesh.as_ref().map(|x| x.chamfer),
-        chamfer_whole_gt: m.mesh_whole_gt.as_ref().map(|x| x.chamfer),
-        fscore: m.mesh.as_ref().map(|x| x.fscore),
-        // The test-view depth of the fusion (the crossing depth with `--depth-crossing`).
-        depth_err: m.test_depth.map(|d| d.depth_median_abs),
-        depth_bias: m.test_depth.map(|d| d.depth_mean_signed),
-        normal_err_deg: m.test_depth.map(|d| d.normal_mean_deg),
         seconds: Some(t0.elapsed().as_secs_f64()),
-        ..ReportRow::default()
+        ..m.geometry_row(label, name)
     })
 }
 
@@ -276,7 +292,7 @@ fn write_report(
     trained: &[(u64, ReportRow)],
 ) -> Result<String> {
     let mut text = markdown_table(rows);
-    if args.seeds != [0] {
+    if args.names_seeds() {
         text.push_str(
             "\nOver the seeds (mean ± sample standard deviation; the last two columns: in how \
              many of the seeds both ran the full model had the smaller error):\n\n",
@@ -316,7 +332,6 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
     // The trained runs' rows with their seeds and bare method names, for the seed summary.
     let mut trained: Vec<(u64, ReportRow)> = Vec::new();
     let mut series: Vec<(String, Timeline)> = Vec::new();
-    let named_seeds = args.seeds != [0];
     for scene_dir in &args.data {
         let name = scene_name(scene_dir);
         let mut full_run: Option<PathBuf> = None;
@@ -327,7 +342,7 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                 } else {
                     format!("{method}-seed{seed}")
                 };
-                let label = if named_seeds {
+                let label = if args.names_seeds() {
                     format!("{method} (seed {seed})")
                 } else {
                     method.clone()
@@ -360,14 +375,6 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                     &format!("{name} / {label}"),
                 )?;
                 let row = ReportRow {
-                    method: label.clone(),
-                    scene: name.clone(),
-                    chamfer: m.mesh.as_ref().map(|x| x.chamfer),
-                    chamfer_whole_gt: m.mesh_whole_gt.as_ref().map(|x| x.chamfer),
-                    fscore: m.mesh.as_ref().map(|x| x.fscore),
-                    depth_err: m.test_depth.map(|d| d.depth_median_abs),
-                    depth_bias: m.test_depth.map(|d| d.depth_mean_signed),
-                    normal_err_deg: m.test_depth.map(|d| d.normal_mean_deg),
                     psnr: Some(m.test_psnr),
                     ssim: Some(m.test_ssim),
                     seconds: Some(m.train_seconds),
@@ -376,6 +383,7 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                         .tile_splats
                         .filter(|_| m.iterations > 0)
                         .map(|t| t as f64 / m.iterations as f64),
+                    ..m.geometry_row(label.clone(), &name)
                 };
                 trained.push((
                     seed,
