@@ -28,6 +28,14 @@ pub(crate) fn bilinear(img: &[f32], w: usize, h: usize, u: f32, v: f32) -> f32 {
     top * (1.0 - fy) + bottom * fy
 }
 
+/// `p` projected into `cam`: pixel coordinates and camera-space depth, when `p` is in front of
+/// the camera and inside its image.
+pub(crate) fn in_image(cam: &Camera, p: Vec3) -> Option<(glam::Vec2, f32)> {
+    let (uv, z) = cam.project(p)?;
+    (uv.x >= 0.0 && uv.y >= 0.0 && uv.x < cam.width as f32 && uv.y < cam.height as f32)
+        .then_some((uv, z))
+}
+
 /// The carving field over the box `[min, max]`, `resolution` voxels along its longest side:
 /// negative inside the hull, positive outside (see the module documentation).
 pub fn hull_grid(
@@ -36,45 +44,25 @@ pub fn hull_grid(
     max: Vec3,
     resolution: usize,
 ) -> Result<Grid> {
-    if views.is_empty() {
-        return Err(EvalError::InvalidArgument(
-            "visual hull needs at least one view".into(),
-        ));
-    }
-    if !(min.is_finite() && max.is_finite() && max.cmpgt(min).all()) {
-        return Err(EvalError::InvalidArgument(format!(
-            "visual hull box [{min}, {max}] is empty or not finite"
-        )));
-    }
     if !(2..=2048).contains(&resolution) {
         return Err(EvalError::InvalidArgument(format!(
             "visual hull resolution {resolution} is outside 2..=2048"
         )));
     }
-    for (k, (cam, mask)) in views.iter().enumerate() {
-        let n = cam.width as usize * cam.height as usize;
-        if mask.len() != n || n == 0 {
-            return Err(EvalError::size(
-                &format!("mask of view {k}"),
-                format!("{}x{} = {n} (non-zero)", cam.width, cam.height),
-                mask.len(),
-            ));
-        }
-    }
     let voxel = (max - min).max_element() / resolution as f32;
-    let cells = ((max - min) / voxel).ceil();
-    let dims = [cells.x, cells.y, cells.z].map(|c| c as usize + 1);
+    let dims = grid_dims(views, min, max, voxel)?;
     let mut grid = Grid::from_fn(min, voxel, dims, |p| {
         let mut field = f32::NEG_INFINITY;
         for (cam, mask) in views {
-            let Some((uv, _)) = cam.project(p) else {
+            let Some((uv, _)) = in_image(cam, p) else {
                 continue;
             };
             let (w, h) = (cam.width as usize, cam.height as usize);
-            if !(uv.x >= 0.0 && uv.y >= 0.0 && uv.x < w as f32 && uv.y < h as f32) {
-                continue;
-            }
             field = field.max(0.5 - bilinear(mask, w, h, uv.x, uv.y));
+            if field >= 0.5 {
+                // Outside some mask entirely: no view can raise it further.
+                break;
+            }
         }
         // Seen by no view: outside.
         if field == f32::NEG_INFINITY {
@@ -84,17 +72,7 @@ pub fn hull_grid(
         }
     });
     // The box faces are outside, so the extracted hull is closed.
-    let [nx, ny, nz] = dims;
-    for k in 0..nz {
-        for j in 0..ny {
-            for i in 0..nx {
-                if i == 0 || j == 0 || k == 0 || i == nx - 1 || j == ny - 1 || k == nz - 1 {
-                    let id = grid.index(i, j, k);
-                    grid.values[id] = grid.values[id].max(0.5);
-                }
-            }
-        }
-    }
+    close_box(&mut grid, 0.5);
     Ok(grid)
 }
 
@@ -111,6 +89,121 @@ pub fn visual_hull(
         &hull_grid(views, min, max, resolution)?,
         0.0,
     ))
+}
+
+/// The masks' signed distance at `p`, in world units: the largest over the views that see `p`
+/// of `(0.5 - mask(u, v)) * z / fx` (the mask bilinear between pixel centres, scaled by the
+/// view's pixel footprint at `p`), positive outside some mask. `None` when no view has `p` in
+/// front of it and inside its image. Inside every mask it is at most half a footprint deep.
+/// A view whose mask is 0 at `p` ends the search: the point is outside, and the other views
+/// could only change how far by a view's difference in footprint.
+pub fn silhouette_distance(views: &[(Camera, &[f32])], p: Vec3) -> Option<f32> {
+    let mut field = f32::NEG_INFINITY;
+    for (cam, mask) in views {
+        let Some((uv, z)) = in_image(cam, p) else {
+            continue;
+        };
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        let footprint = z / cam.fx;
+        let m = bilinear(mask, w, h, uv.x, uv.y);
+        field = field.max((0.5 - m) * footprint);
+        if m <= 0.0 {
+            break;
+        }
+    }
+    (field > f32::NEG_INFINITY).then_some(field)
+}
+
+/// Pixel footprints of the masks (at the mesh box's centre, median over the views) in a voxel
+/// of [`masks_mesh`]: finer than a pixel, so that the bilinear masks' sub-pixel crossing
+/// survives marching cubes.
+pub const MASKS_VOXEL_FOOTPRINTS: f32 = 0.75;
+
+/// The masks alone, done well: the surface where the bilinearly interpolated masks cross 0.5
+/// ([`silhouette_distance`]), extracted by marching cubes in the box of [`hull_box`] at a
+/// voxel of [`MASKS_VOXEL_FOOTPRINTS`] median pixel footprints (`voxel` overrides it), the
+/// largest component. Pass the masks at the dataset's own resolution: the training size
+/// throws away the sub-pixel edge. `None` when the masks are empty. Errors as [`hull_grid`].
+pub fn masks_mesh(views: &[(Camera, &[f32])], voxel: Option<f32>) -> Result<Option<TriMesh>> {
+    let Some((lo, hi)) = hull_box(views)? else {
+        return Ok(None);
+    };
+    let voxel = voxel.unwrap_or_else(|| {
+        MASKS_VOXEL_FOOTPRINTS
+            * crate::tsdf::median_pixel_footprint(views.iter().map(|(c, _)| c), 0.5 * (lo + hi))
+    });
+    let grid = masks_grid(views, lo, hi, voxel)?;
+    let mesh = crate::mesh::largest_component(&marching_cubes(&grid, 0.0));
+    Ok((!mesh.triangles.is_empty()).then_some(mesh))
+}
+
+/// [`silhouette_distance`] on the grid over `[min, max]` with spacing `voxel`, the box faces
+/// and points no view sees outside (so the surface is closed). Errors as [`hull_grid`] does,
+/// and on a voxel that is not positive or a grid over 2^31 points.
+pub fn masks_grid(views: &[(Camera, &[f32])], min: Vec3, max: Vec3, voxel: f32) -> Result<Grid> {
+    let dims = grid_dims(views, min, max, voxel)?;
+    let mut grid = Grid::from_fn(min, voxel, dims, |p| {
+        silhouette_distance(views, p).unwrap_or(voxel)
+    });
+    close_box(&mut grid, voxel);
+    Ok(grid)
+}
+
+/// Checks the views and the box for the grids built from masks; the grid's point counts.
+pub(crate) fn grid_dims(
+    views: &[(Camera, &[f32])],
+    min: Vec3,
+    max: Vec3,
+    voxel: f32,
+) -> Result<[usize; 3]> {
+    if views.is_empty() {
+        return Err(EvalError::InvalidArgument(
+            "a grid from masks needs at least one view".into(),
+        ));
+    }
+    if !(min.is_finite() && max.is_finite() && max.cmpgt(min).all()) {
+        return Err(EvalError::InvalidArgument(format!(
+            "grid box [{min}, {max}] is empty or not finite"
+        )));
+    }
+    if !(voxel.is_finite() && voxel > 0.0) {
+        return Err(EvalError::InvalidArgument(format!(
+            "grid voxel {voxel} must be positive and finite"
+        )));
+    }
+    for (k, (cam, mask)) in views.iter().enumerate() {
+        let n = cam.width as usize * cam.height as usize;
+        if mask.len() != n || n == 0 {
+            return Err(EvalError::size(
+                &format!("mask of view {k}"),
+                format!("{}x{} = {n} (non-zero)", cam.width, cam.height),
+                mask.len(),
+            ));
+        }
+    }
+    let cells = ((max - min) / voxel).ceil();
+    let dims = [cells.x, cells.y, cells.z].map(|c| c as usize + 1);
+    match dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)) {
+        Some(n) if n <= (1 << 31) => Ok(dims),
+        _ => Err(EvalError::InvalidArgument(format!(
+            "grid {dims:?} is too large (voxel {voxel})"
+        ))),
+    }
+}
+
+/// Sets the grid's box faces to at least `outside`, so the extracted surface is closed.
+pub(crate) fn close_box(grid: &mut Grid, outside: f32) {
+    let [nx, ny, nz] = grid.dims;
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                if i == 0 || j == 0 || k == 0 || i == nx - 1 || j == ny - 1 || k == nz - 1 {
+                    let id = grid.index(i, j, k);
+                    grid.values[id] = grid.values[id].max(outside);
+                }
+            }
+        }
+    }
 }
 
 /// Voxels along the side of the cameras' box when [`hull_box`] carves the masks.
@@ -143,11 +236,6 @@ pub fn hull_box(views: &[(Camera, &[f32])]) -> Result<Option<(Vec3, Vec3)>> {
         mean + Vec3::splat(reach),
         HULL_BOX_RESOLUTION,
     )?;
-    let in_frustum = |cam: &Camera, p: Vec3| {
-        cam.project(p).is_some_and(|(uv, _)| {
-            uv.x >= 0.0 && uv.y >= 0.0 && uv.x < cam.width as f32 && uv.y < cam.height as f32
-        })
-    };
     let [nx, ny, nz] = grid.dims;
     let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
     for k in 0..nz {
@@ -155,7 +243,10 @@ pub fn hull_box(views: &[(Camera, &[f32])]) -> Result<Option<(Vec3, Vec3)>> {
             for i in 0..nx {
                 let p = grid.point(i, j, k);
                 let inside = grid.values[grid.index(i, j, k)] < 0.0
-                    && 2 * views.iter().filter(|(cam, _)| in_frustum(cam, p)).count()
+                    && 2 * views
+                        .iter()
+                        .filter(|(cam, _)| in_image(cam, p).is_some())
+                        .count()
                         >= views.len();
                 if inside {
                     lo = lo.min(p);

@@ -10,6 +10,7 @@
 
 #![warn(missing_docs)]
 
+pub mod carve;
 pub mod consistency;
 pub mod depth;
 pub mod error;
@@ -21,15 +22,17 @@ pub mod report;
 pub mod timeline;
 pub mod tsdf;
 
+pub use carve::{CarveSettings, DepthMap, carve_grid, carve_mesh};
 pub use consistency::{ConsistencySettings, DepthView, filter_consistent};
 pub use depth::{DepthComparison, DepthMetrics, MeshDepth, MeshRaycaster};
 pub use error::{EvalError, Result};
-pub use hull::visual_hull;
+pub use hull::{masks_mesh, visual_hull};
 pub use marching::{Grid, marching_cubes};
 pub use mesh::{largest_component, sample_surface, weld};
 pub use metrics::{
-    ImageRef, MeshMetrics, SCORE_SAMPLES, SEEN_MIN_EYES, chamfer, chamfer_seen,
-    chamfer_seen_and_whole, psnr, score_against_ground_truth, ssim,
+    HULL_BLIND_RADII, HullBlind, ImageRef, MeshMetrics, SCORE_SAMPLES, SEEN_MIN_EYES,
+    SignedDistance, chamfer, chamfer_seen, chamfer_seen_and_whole, psnr,
+    score_against_ground_truth, ssim,
 };
 pub use report::{ReportRow, markdown_table, seed_summary_table};
 pub use timeline::{Timeline, TimelinePoint, plot_png};

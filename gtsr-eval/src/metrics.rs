@@ -20,6 +20,7 @@
 //! selected pixels when masked).
 
 use glam::Vec3;
+use gtsr_data::Camera;
 use gtsr_data::ply::TriMesh;
 use parry3d::query::{PointQueryWithLocation, RayCast};
 use rayon::prelude::*;
@@ -54,6 +55,29 @@ pub struct MeshMetrics {
     /// non-watertight ground truth).
     #[serde(default = "one")]
     pub gt_seen: f64,
+    /// The completeness split by what the masks' hull can place ([`HullBlind`]); only from
+    /// [`score_against_ground_truth`] given a hull.
+    #[serde(default)]
+    pub hull_blind: Option<HullBlind>,
+}
+
+/// Completeness split between the part of the (seen) ground truth that the masks' hull misses
+/// by more than a distance threshold, which only shading can place (concavities no silhouette
+/// shows), and the rest.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HullBlind {
+    /// The distance to the hull beyond which a ground-truth sample is hull-blind.
+    pub threshold: f64,
+    /// Fraction of the kept ground-truth samples that are hull-blind.
+    pub fraction: f64,
+    /// Mean distance from the hull-blind ground-truth samples to the predicted mesh (0 when
+    /// there are none).
+    pub blind: f64,
+    /// Mean distance from the other ground-truth samples to the predicted mesh.
+    pub rest: f64,
+    /// Mean distance from the hull-blind ground-truth samples to the hull itself: what the
+    /// masks alone score on that part.
+    pub hull_on_blind: f64,
 }
 
 fn one() -> f64 {
@@ -154,6 +178,36 @@ impl<'a> Target<'a> {
     }
 }
 
+/// Exact closest-point queries against a mesh, signed by the side of the closest triangle: for
+/// diagnosing where reconstructed points lie relative to a ground truth.
+pub struct SignedDistance<'a> {
+    target: Target<'a>,
+}
+
+impl<'a> SignedDistance<'a> {
+    /// Prepares `mesh` (`what` names it in errors; invalid or empty meshes are errors).
+    pub fn new(mesh: &'a TriMesh, what: &str) -> Result<Self> {
+        Ok(SignedDistance {
+            target: Target::new(mesh, what)?,
+        })
+    }
+
+    /// The distance from `p` to the mesh, positive on the side the closest triangle's winding
+    /// normal points to (outside, for a closed outward-wound mesh), and that unit normal.
+    pub fn query(&self, p: Vec3) -> (f32, Vec3) {
+        let q = parry3d::math::Vector::new(p.x, p.y, p.z);
+        let (proj, (tri, _)) = self
+            .target
+            .bvh
+            .project_local_point_and_get_location(q, false);
+        let c = Vec3::new(proj.point.x, proj.point.y, proj.point.z);
+        let t = self.target.mesh.triangles[self.target.original[tri as usize] as usize];
+        let n = face_normal_scaled(self.target.mesh, t).normalize_or_zero();
+        let d = (p - c).length();
+        (if (p - c).dot(n) < 0.0 { -d } else { d }, n)
+    }
+}
+
 /// Per sample: the distance to `target` and `|cos|` between the sample's normal and the
 /// closest triangle's.
 fn closest_all(
@@ -220,6 +274,7 @@ fn metrics(
         threshold: threshold as f64,
         samples,
         gt_seen,
+        hull_blind: None,
     }
 }
 
@@ -234,7 +289,7 @@ pub fn chamfer(
     threshold: f32,
     seed: u64,
 ) -> Result<MeshMetrics> {
-    Ok(chamfer_impl(pred, gt, None, samples, threshold, seed)?.0)
+    Ok(chamfer_impl(pred, gt, None, None, samples, threshold, seed)?.0)
 }
 
 /// The whole-ground-truth metrics and, with `eyes`, the seen ones, from one set of samples.
@@ -242,6 +297,7 @@ fn chamfer_impl(
     pred: &TriMesh,
     gt: &TriMesh,
     eyes: Option<(&[Vec3], usize)>,
+    hull: Option<(&TriMesh, f32)>,
     samples: usize,
     threshold: f32,
     seed: u64,
@@ -273,24 +329,76 @@ fn chamfer_impl(
         threshold,
     );
     let to_pred = closest_all(&gt_samples, &pred_target, "ground-truth")?;
-    let whole = metrics(
+    let to_hull = match hull {
+        Some((hull, blind_at)) => {
+            if !(blind_at > 0.0 && blind_at.is_finite()) {
+                return Err(EvalError::InvalidArgument(format!(
+                    "hull-blind threshold {blind_at} must be positive and finite"
+                )));
+            }
+            let target = Target::new(hull, "masks' hull")?;
+            Some((closest_all(&gt_samples, &target, "ground-truth")?, blind_at))
+        }
+        None => None,
+    };
+    let split = |keep: Option<&[bool]>| {
+        to_hull
+            .as_ref()
+            .map(|(to_hull, blind_at)| hull_blind_split(&to_pred, to_hull, keep, *blind_at))
+    };
+    let mut whole = metrics(
         to_gt,
         one_way(&to_pred, None, threshold),
         threshold,
         samples,
         1.0,
     );
+    whole.hull_blind = split(None);
     let seen = keep.map(|keep| {
         let kept = keep.iter().filter(|k| **k).count();
-        metrics(
+        let mut m = metrics(
             to_gt,
             one_way(&to_pred, Some(&keep), threshold),
             threshold,
             samples,
             kept as f64 / keep.len() as f64,
-        )
+        );
+        m.hull_blind = split(Some(&keep));
+        m
     });
     Ok((whole, seen))
+}
+
+/// [`HullBlind`] over the ground-truth samples `keep` flags (all when `None`): `to_pred` and
+/// `to_hull` hold each sample's distance to the prediction and to the hull.
+fn hull_blind_split(
+    to_pred: &[(f32, f32)],
+    to_hull: &[(f32, f32)],
+    keep: Option<&[bool]>,
+    blind_at: f32,
+) -> HullBlind {
+    let (mut n, mut nb, mut sb, mut sr, mut sh) = (0usize, 0usize, 0.0f64, 0.0f64, 0.0f64);
+    for (k, (&(dp, _), &(dh, _))) in to_pred.iter().zip(to_hull).enumerate() {
+        if keep.is_some_and(|f| !f[k]) {
+            continue;
+        }
+        n += 1;
+        if dh > blind_at {
+            nb += 1;
+            sb += dp as f64;
+            sh += dh as f64;
+        } else {
+            sr += dp as f64;
+        }
+    }
+    let mean = |s: f64, k: usize| if k > 0 { s / k as f64 } else { 0.0 };
+    HullBlind {
+        threshold: blind_at as f64,
+        fraction: nb as f64 / n.max(1) as f64,
+        blind: mean(sb, nb),
+        rest: mean(sr, n - nb),
+        hull_on_blind: mean(sh, nb),
+    }
 }
 
 /// Which ground-truth samples at least `min_eyes` of `eyes` see; errors as [`chamfer_seen`].
@@ -367,43 +475,56 @@ pub fn chamfer_seen_and_whole(
     threshold: f32,
     seed: u64,
 ) -> Result<(MeshMetrics, MeshMetrics)> {
-    let (whole, seen) = chamfer_impl(pred, gt, Some((eyes, min_eyes)), samples, threshold, seed)?;
+    let (whole, seen) = chamfer_impl(
+        pred,
+        gt,
+        Some((eyes, min_eyes)),
+        None,
+        samples,
+        threshold,
+        seed,
+    )?;
     Ok((seen.expect("eyes were given"), whole))
 }
 
 /// The number of eyes that must see a ground-truth sample for [`chamfer_seen`] to keep it, as
-/// gtsr-train, `gtsr-eval mesh --seen-from` (`--min-eyes`) and `cargo xtask bench-recon` use
-/// it (the README's table since 2026-11-22; one eye before). One eye lets inside faces through: on
-/// amber_ingot (80 training cameras), of 200 ground-truth samples more than 5 cm inside the
-/// reconstructed surface, 126 were seen by no camera, 54 by one, 19 by two and 1 by four (rays
-/// through the seams of its overlapping parts), while all 200 samples within 5 mm of the
-/// surface were seen by five or more. Three eyes keep those out.
-pub const SEEN_MIN_EYES: usize = 3;
+/// [`score_against_ground_truth`] and `gtsr-eval mesh --seen-from` (`--min-eyes`) use it: one
+/// training camera with an unblocked segment to the sample is enough.
+pub const SEEN_MIN_EYES: usize = 1;
 
 /// Area-uniform samples per mesh in [`score_against_ground_truth`].
-pub const SCORE_SAMPLES: usize = 50_000;
+pub const SCORE_SAMPLES: usize = 100_000;
+
+/// Ground truth farther than this fraction of its radius from the masks' hull is hull-blind
+/// ([`HullBlind`]; 0.01 for the unit-radius development scenes).
+pub const HULL_BLIND_RADII: f32 = 0.01;
 
 /// A reconstructed mesh against a scene's ground truth as gtsr-train, `cargo xtask
-/// bench-recon` and `cargo xtask fusion-ceiling` report it, `(seen, whole)`
-/// ([`chamfer_seen_and_whole`]): `eyes` the training cameras' centres, [`SEEN_MIN_EYES`] of
-/// them to keep a ground-truth sample, [`SCORE_SAMPLES`] samples per mesh with seed 0, and
-/// the F-score threshold 1 % of the ground truth's radius (half the longest side of its box).
+/// bench-recon` and `cargo xtask fusion-ceiling` report it, `(seen, whole)`: the seen ground
+/// truth is what [`SEEN_MIN_EYES`] of the training `cameras`' centres see (unblocked
+/// segments), [`SCORE_SAMPLES`] samples per mesh with seed 0, and the F-score threshold 1 % of
+/// the ground truth's radius (half the longest side of its box).
+/// With `hull` (the masks alone, [`crate::hull::masks_mesh`]) both carry the [`HullBlind`]
+/// split at [`HULL_BLIND_RADII`].
 pub fn score_against_ground_truth(
     pred: &TriMesh,
     gt: &TriMesh,
-    eyes: &[Vec3],
+    cameras: &[Camera],
+    hull: Option<&TriMesh>,
 ) -> Result<(MeshMetrics, MeshMetrics)> {
     let (lo, hi) = gt.bounds();
     let radius = 0.5 * (hi - lo).max_element();
-    chamfer_seen_and_whole(
+    let eyes: Vec<Vec3> = cameras.iter().map(|c| c.centre()).collect();
+    let (whole, seen) = chamfer_impl(
         pred,
         gt,
-        eyes,
-        SEEN_MIN_EYES,
+        Some((&eyes, SEEN_MIN_EYES)),
+        hull.map(|h| (h, HULL_BLIND_RADII * radius)),
         SCORE_SAMPLES,
         0.01 * radius,
         0,
-    )
+    )?;
+    Ok((seen.expect("eyes were given"), whole))
 }
 
 /// A borrowed image: `width * height * channels` values, row-major, channels interleaved.

@@ -293,3 +293,50 @@ fn empty_and_invalid_meshes_are_errors() {
     let e = chamfer(&empty, &good, 100, 0.1, 0).unwrap_err().to_string();
     assert!(e.contains("predicted"), "{e}");
 }
+
+#[test]
+fn the_hull_blind_split_measures_what_the_masks_miss() {
+    let gt = icosphere(Vec3::ZERO, 1.0, 4);
+    let cameras: Vec<gtsr_data::Camera> = [Vec3::X, Vec3::Y, Vec3::Z, -Vec3::X, -Vec3::Y, -Vec3::Z]
+        .iter()
+        .map(|d| {
+            let up = if d.y.abs() > 0.5 { Vec3::X } else { Vec3::Y };
+            gtsr_data::Camera::look_at(*d * 4.0, Vec3::ZERO, up, 0.8, 32, 32)
+        })
+        .collect();
+    // A hull 0.05 outside everywhere: all of the ground truth is hull-blind at 0.01.
+    let loose = icosphere(Vec3::ZERO, 1.05, 4);
+    let (m, whole) =
+        gtsr_eval::score_against_ground_truth(&gt, &gt, &cameras, Some(&loose)).unwrap();
+    let b = m.hull_blind.expect("a split");
+    assert!(b.fraction > 0.99, "{b:?}");
+    assert!(b.blind < 2e-3, "the prediction is the ground truth: {b:?}");
+    assert!((b.hull_on_blind - 0.05).abs() < 5e-3, "{b:?}");
+    assert!(whole.hull_blind.is_some());
+    // The loose hull as the prediction scores its own distance there.
+    let (m, _) =
+        gtsr_eval::score_against_ground_truth(&loose, &gt, &cameras, Some(&loose)).unwrap();
+    let b = m.hull_blind.unwrap();
+    assert!((b.blind - b.hull_on_blind).abs() < 1e-6, "{b:?}");
+    // A hull on the ground truth leaves nothing blind.
+    let (m, _) = gtsr_eval::score_against_ground_truth(&loose, &gt, &cameras, Some(&gt)).unwrap();
+    let b = m.hull_blind.unwrap();
+    assert_eq!(b.fraction, 0.0);
+    assert_eq!(b.blind, 0.0);
+    assert!((b.rest - m.completeness).abs() < 1e-9, "{b:?} {m:?}");
+    // Without a hull there is no split.
+    let (m, _) = gtsr_eval::score_against_ground_truth(&gt, &gt, &cameras, None).unwrap();
+    assert!(m.hull_blind.is_none());
+}
+
+#[test]
+fn signed_distance_is_positive_outside_an_outward_mesh() {
+    let sphere = icosphere(Vec3::ZERO, 1.0, 4);
+    let sd = gtsr_eval::SignedDistance::new(&sphere, "sphere").unwrap();
+    let (out, n) = sd.query(Vec3::new(0.0, 0.0, 1.5));
+    assert!((out - 0.5).abs() < 5e-3, "{out}");
+    assert!(n.z > 0.99, "{n}");
+    let (inside, _) = sd.query(Vec3::new(0.0, 0.7, 0.0));
+    assert!((inside + 0.3).abs() < 5e-3, "{inside}");
+    assert!(gtsr_eval::SignedDistance::new(&TriMesh::default(), "empty").is_err());
+}

@@ -279,6 +279,17 @@ pub struct LossWeights {
     /// a stack of faint ones.
     #[serde(default)]
     pub spread: f64,
+    /// Opacity binarisation of the surface set in stage 2 (not in the paper): the mean binary
+    /// entropy of the surface opacities ([`crate::losses::opacity_entropy`]), which pushes
+    /// each towards 0 or 1, so the surface ends one opaque layer rather than a stack of faint
+    /// ones whose blended depth lies behind the surface.
+    #[serde(default)]
+    pub opacity_entropy: f64,
+    /// In stage 2 the mask term counts only missing coverage inside the mask
+    /// ([`crate::losses::mask_deficit`]), not coverage spilling past it, which pulls the
+    /// surface Gaussians inward (not in the paper; off by default).
+    #[serde(default)]
+    pub mask_deficit_only: bool,
 }
 
 impl Default for LossWeights {
@@ -294,6 +305,8 @@ impl Default for LossWeights {
             flatten: 100.0,
             mask: 0.1,
             spread: 0.0,
+            opacity_entropy: 0.0,
+            mask_deficit_only: false,
         }
     }
 }
@@ -530,6 +543,7 @@ impl TrainConfig {
             ("weights.flatten", self.weights.flatten),
             ("weights.mask", self.weights.mask),
             ("weights.spread", self.weights.spread),
+            ("weights.opacity_entropy", self.weights.opacity_entropy),
         ] {
             if !v.is_finite() || v < 0.0 {
                 bad.push(format!("{name} must be finite and non-negative, got {v}"));

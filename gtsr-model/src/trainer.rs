@@ -478,7 +478,19 @@ impl Trainer {
             .as_ref()
             .map_or(r.alpha_sh.clone(), |g| g.coverage.clone());
         if let (Some(mask), true) = (&view.mask, w.mask > 0.0) {
-            terms.push(("mask", losses::mask_l1(&coverage, mask) * w.mask));
+            let term = if stage2 && w.mask_deficit_only {
+                losses::mask_deficit(&coverage, mask)
+            } else {
+                losses::mask_l1(&coverage, mask)
+            };
+            terms.push(("mask", term * w.mask));
+        }
+        if stage2 && w.opacity_entropy > 0.0 {
+            terms.push((
+                "opacity_entropy",
+                losses::opacity_entropy(self.model.surface.req(ParamKind::Opacity))
+                    * w.opacity_entropy,
+            ));
         }
         if w.flatten > 0.0 {
             terms.push((

@@ -65,6 +65,14 @@ pub struct Args {
     /// (on its boundary).
     #[arg(long)]
     pub init: Option<String>,
+    /// Weight of the surface opacities' binarisation in stage 2 (gtsr-model's
+    /// `weights.opacity_entropy`; 0: off).
+    #[arg(long)]
+    pub opacity_entropy: Option<f64>,
+    /// In stage 2 the mask term counts only missing coverage inside the masks (gtsr-model's
+    /// `weights.mask_deficit_only`).
+    #[arg(long)]
+    pub mask_deficit_only: bool,
     /// Seed of every random choice.
     #[arg(long)]
     pub seed: Option<u64>,
@@ -74,6 +82,28 @@ pub struct Args {
     /// Evaluations (test PSNR/SSIM, mesh chamfer) along the run for the error-against-time log.
     #[arg(long, default_value_t = 10)]
     pub eval_points: usize,
+    /// How the mesh is extracted. `carve` (with a mask on every view): the masks at the
+    /// dataset's own resolution bound the object with sub-pixel placement, and the rendered
+    /// depth carves inside that bound where `--carve-views` views agree (gtsr-eval's `carve`).
+    /// `tsdf`: TSDF fusion of the rendered depth (with the masks' hull when there are masks).
+    /// Scenes without masks always use `tsdf`.
+    #[arg(long, value_enum, default_value_t = Fusion::Carve)]
+    pub fusion: Fusion,
+    /// Carving: the depth views that must each put a point in front of their rendered surface.
+    /// (1 to 16.)
+    #[arg(long, default_value_t = 3)]
+    pub carve_views: usize,
+    /// Carving: how far in front, in that view's training-pixel footprints.
+    #[arg(long, default_value_t = 3.0, allow_negative_numbers = true)]
+    pub carve_margin: f32,
+    /// Carving: the least share of the views that put a point in front of their surface among
+    /// those that put it in front or near it (the rest see it hidden and do not count).
+    #[arg(long, default_value_t = 0.5)]
+    pub carve_free_ratio: f32,
+    /// Carving: the grid spacing (scene units); default: 0.75 of the masks' pixel footprint
+    /// at the object (dataset resolution).
+    #[arg(long)]
+    pub carve_voxel: Option<f32>,
     /// TSDF voxel size (scene units); default: the scene radius / 256.
     #[arg(long)]
     pub voxel: Option<f32>,
@@ -131,6 +161,16 @@ pub struct Args {
     /// Save a checkpoint every this many steps (0: only at the end or on Ctrl-C).
     #[arg(long, default_value_t = 500)]
     pub checkpoint_every: usize,
+}
+
+/// Mesh extraction.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Fusion {
+    /// The masks bound, the rendered depth carves (needs masks).
+    Carve,
+    /// TSDF fusion of the rendered depth.
+    Tsdf,
 }
 
 /// Compute backend.

@@ -24,8 +24,57 @@ use gtsr_model::views::ViewTensors;
 use gtsr_model::views::kernel_camera;
 use serde::Serialize;
 
-/// TSDF settings from the command line (`None`: from the scene radius).
+/// The masks at the dataset's own resolution, and what they give alone.
+pub struct NativeMasks {
+    /// Every training view's camera and mask at the dataset's resolution.
+    pub views: Vec<(gtsr_data::Camera, Vec<f32>)>,
+    /// The masks alone ([`gtsr_eval::masks_mesh`]): the baseline every mesh is held to, and
+    /// the bound the carving works inside.
+    pub mesh: TriMesh,
+    /// The grid spacing of [`NativeMasks::mesh`].
+    pub voxel: f32,
+}
+
+impl NativeMasks {
+    /// The masks of `views` (every one must have one) and their mesh; `None` when the masks
+    /// are empty.
+    pub fn new(views: &[gtsr_data::View]) -> Result<Option<Self>> {
+        let views: Vec<(gtsr_data::Camera, Vec<f32>)> = views
+            .iter()
+            .map(|v| {
+                v.mask
+                    .clone()
+                    .map(|m| (v.camera, m))
+                    .with_context(|| format!("view {} has no mask", v.name))
+            })
+            .collect::<Result<_>>()?;
+        let borrowed = Self::borrow(&views);
+        let Some((lo, hi)) = gtsr_eval::hull::hull_box(&borrowed)? else {
+            return Ok(None);
+        };
+        let voxel = gtsr_eval::hull::MASKS_VOXEL_FOOTPRINTS
+            * median_pixel_footprint(views.iter().map(|(c, _)| c), 0.5 * (lo + hi));
+        let Some(mesh) = gtsr_eval::masks_mesh(&borrowed, Some(voxel))? else {
+            return Ok(None);
+        };
+        Ok(Some(NativeMasks { views, mesh, voxel }))
+    }
+
+    fn borrow(views: &[(gtsr_data::Camera, Vec<f32>)]) -> Vec<(gtsr_data::Camera, &[f32])> {
+        views.iter().map(|(c, m)| (*c, m.as_slice())).collect()
+    }
+}
+
+/// Mesh extraction settings from the command line (`None`: from the scene).
 pub struct MeshSettings {
+    /// Carve inside the masks (with [`MeshSettings::masks`]) or fuse a TSDF.
+    pub fusion: crate::Fusion,
+    /// How many views must agree to carve, and by how much.
+    pub carve: gtsr_eval::CarveSettings,
+    /// The carving grid's spacing; `None`: [`NativeMasks::voxel`].
+    pub carve_voxel: Option<f32>,
+    /// The masks at the dataset's resolution (every training view has one).
+    pub masks: Option<NativeMasks>,
     /// Voxel size.
     pub voxel: Option<f32>,
     /// Truncation distance.
@@ -129,6 +178,11 @@ pub fn hull_bounds(views: &[gtsr_data::View]) -> Result<Option<(Vec3, Vec3)>> {
     Ok(gtsr_eval::hull::hull_box(&masked)?)
 }
 
+/// The training cameras (whose centres decide which ground truth is seen).
+fn training_cameras(scene: &Scene) -> Vec<gtsr_data::Camera> {
+    scene.train.iter().map(|v| v.camera).collect()
+}
+
 /// The surface geometry whose depth is fused and measured: the blended maps, or with
 /// [`MeshSettings::depth_crossing`] those of the crossing splat.
 fn fusion_geometry(
@@ -143,8 +197,10 @@ fn fusion_geometry(
     })
 }
 
-/// TSDF fusion of the unbiased depth of every training view (depth kept where the mask, or
-/// without masks the surface coverage, is at least 0.5), marching cubes, largest component.
+/// The mesh: with masks and [`crate::Fusion::Carve`], the native masks carved by the rendered
+/// depth ([`gtsr_eval::carve`]); otherwise TSDF fusion of the unbiased depth of every training
+/// view (depth kept where the mask, or without masks the surface coverage, is at least 0.5).
+/// Marching cubes, largest component.
 pub fn extract_mesh(
     trainer: &Trainer,
     scene: &Scene,
@@ -156,6 +212,38 @@ pub fn extract_mesh(
     } else {
         settings.fusion_views.iter().collect()
     };
+    if settings.fusion == crate::Fusion::Carve
+        && let Some(masks) = &settings.masks
+    {
+        if !settings.fuse_depth {
+            return Ok(masks.mesh.clone());
+        }
+        let (lo, hi) = settings
+            .bounds
+            .context("the carving box comes from the masks")?;
+        let voxel = settings.carve_voxel.unwrap_or(masks.voxel) * if coarse { 2.0 } else { 1.0 };
+        let maps = host_views
+            .iter()
+            .enumerate()
+            .map(|(k, data)| Ok(fusion_depth(trainer, k, data, settings)?.0))
+            .collect::<Result<Vec<_>>>()?;
+        let depths: Vec<gtsr_eval::DepthMap> = host_views
+            .iter()
+            .zip(&maps)
+            .map(|(v, depth)| gtsr_eval::DepthMap {
+                camera: &v.camera,
+                depth,
+            })
+            .collect();
+        return Ok(gtsr_eval::carve_mesh(
+            &NativeMasks::borrow(&masks.views),
+            &depths,
+            lo,
+            hi,
+            voxel,
+            &settings.carve,
+        )?);
+    }
     let (lo, hi) = settings
         .bounds
         .unwrap_or_else(|| mesh_bounds(&trainer.model));
@@ -351,8 +439,9 @@ pub fn evaluate(
             if m.triangles.is_empty() {
                 (None, None, Some(m))
             } else {
-                let eyes: Vec<Vec3> = scene.train.iter().map(|v| v.camera.centre()).collect();
-                let (seen, whole) = score_against_ground_truth(&m, gt, &eyes)?;
+                let hull = settings.masks.as_ref().map(|m| &m.mesh);
+                let (seen, whole) =
+                    score_against_ground_truth(&m, gt, &training_cameras(scene), hull)?;
                 // The whole-ground-truth number is reported only at the end (`finish`).
                 (Some(seen), (!coarse).then_some(whole), Some(m))
             }
@@ -518,6 +607,9 @@ struct Metrics {
     mesh: Option<MeshMetrics>,
     /// Against the whole ground truth, faces no camera sees included.
     mesh_whole_gt: Option<MeshMetrics>,
+    /// The masks alone at the dataset's resolution against the seen ground truth: the
+    /// baseline beside `mesh`.
+    masks_alone: Option<MeshMetrics>,
     /// Rendered test-view depth and normals against the ground-truth mesh's.
     test_depth: Option<DepthMetrics>,
     mesh_vertices: usize,
@@ -547,6 +639,13 @@ pub fn finish(
     let n_splats = write_splats(trainer, out)?;
     let n_strips = write_strips(trainer, tests, scene, &out.join("renders"))?;
     let (ns, ni) = trainer.model.counts();
+    let masks_alone = match (gt, &settings.masks) {
+        (Some(gt), Some(masks)) => {
+            let cameras = training_cameras(scene);
+            Some(score_against_ground_truth(&masks.mesh, gt, &cameras, Some(&masks.mesh))?.0)
+        }
+        _ => None,
+    };
     let metrics = Metrics {
         iterations: trainer.step,
         train_seconds,
@@ -563,6 +662,7 @@ pub fn finish(
         test_psnr_pbr: e.psnr_pbr,
         mesh: e.mesh,
         mesh_whole_gt: e.mesh_whole_gt,
+        masks_alone,
         test_depth: e.depth,
         mesh_vertices: mesh.positions.len(),
         mesh_triangles: mesh.triangles.len(),
@@ -609,6 +709,28 @@ pub fn finish(
             m.normal_consistency
         ))
     );
+    let blind = |m: &MeshMetrics| {
+        m.hull_blind.map_or(String::new(), |b| {
+            format!(
+                "; on the {:.1} % the masks miss by > {:.3}: {:.2} x1e3 (elsewhere {:.2})",
+                100.0 * b.fraction,
+                b.threshold,
+                b.blind * 1e3,
+                b.rest * 1e3
+            )
+        })
+    };
+    if let Some(m) = &e.mesh {
+        println!("mesh: chamfer x1e3 {:.2}{}", m.chamfer * 1e3, blind(m));
+    }
+    if let Some(m) = &masks_alone {
+        println!(
+            "masks alone ({} px masks): chamfer x1e3 {:.2}{}",
+            settings.masks.as_ref().map_or(0, |n| n.views[0].0.width),
+            m.chamfer * 1e3,
+            blind(m)
+        );
+    }
     if let Some(d) = &e.depth {
         println!(
             "test-view geometry against the ground truth ({} px, {:.1} % covered): depth error \

@@ -197,6 +197,12 @@ fn resolve_config(
     if let Some(s) = args.seed {
         cfg.seed = s;
     }
+    if let Some(w) = args.opacity_entropy {
+        cfg.weights.opacity_entropy = w;
+    }
+    if args.mask_deficit_only {
+        cfg.weights.mask_deficit_only = true;
+    }
     if let Some(init) = &args.init {
         cfg.init = match init.as_str() {
             "random" => Init::Random,
@@ -246,6 +252,52 @@ fn fusion_views(
         scene.train[0].height()
     );
     Ok(fusion.train)
+}
+
+/// With a mask on every training view: the masks at the dataset's own resolution (loaded again
+/// when training downscales) and their mesh; `None` otherwise.
+fn native_masks(
+    data_dir: &Path,
+    opts: &LoadOptions,
+    scene: &Scene,
+) -> Result<Option<outputs::NativeMasks>> {
+    if scene.train.iter().any(|v| v.mask.is_none()) {
+        return Ok(None);
+    }
+    let t0 = Instant::now();
+    let native;
+    let views = if matches!(opts.downscale, Downscale::None) {
+        &scene.train
+    } else {
+        native = load_scene(
+            data_dir,
+            &LoadOptions {
+                downscale: Downscale::None,
+                ..opts.clone()
+            },
+        )
+        .with_context(|| format!("loading the masks of {} at full size", data_dir.display()))?;
+        if native.train.len() != scene.train.len() || native.train.iter().any(|v| v.mask.is_none())
+        {
+            bail!(
+                "{}: the full-size training views differ",
+                data_dir.display()
+            );
+        }
+        &native.train
+    };
+    let masks = outputs::NativeMasks::new(views)?;
+    if let Some(m) = &masks {
+        println!(
+            "masks alone at {}x{}: {} triangles, voxel {:.4} ({:.1} s)",
+            views[0].width(),
+            views[0].height(),
+            m.mesh.triangles.len(),
+            m.voxel,
+            t0.elapsed().as_secs_f64()
+        );
+    }
+    Ok(masks)
 }
 
 /// 3DGS's scene extent: 1.1 times the largest distance of a camera centre from their mean.
@@ -395,7 +447,42 @@ pub fn run(args: &Args) -> Result<Outcome> {
             data_dir.display()
         );
     }
+    if args.fusion == crate::Fusion::Carve && scene.train.iter().all(|v| v.mask.is_some()) {
+        let tsdf_only = [
+            (args.no_silhouette_carving, "--no-silhouette-carving"),
+            (args.hull_inside_distance, "--hull-inside-distance"),
+            (args.snap_to_hull.is_some(), "--snap-to-hull"),
+            (args.depth_consistency.is_some(), "--depth-consistency"),
+            (args.truncation.is_some(), "--truncation"),
+            (
+                args.truncation_footprints.is_some(),
+                "--truncation-footprints",
+            ),
+            (args.voxel.is_some(), "--voxel"),
+        ];
+        if let Some((_, flag)) = tsdf_only.iter().find(|(on, _)| *on) {
+            bail!("{flag} applies to --fusion tsdf (the default is carve)");
+        }
+    }
+    let carve = gtsr_eval::CarveSettings {
+        min_views: args.carve_views,
+        margin_footprints: args.carve_margin,
+        min_free_ratio: args.carve_free_ratio,
+    };
+    carve
+        .validate()
+        .map_err(|e| anyhow::anyhow!("--carve-views / --carve-margin / --carve-free-ratio: {e}"))?;
+    if let Some(v) = args.carve_voxel
+        && !(v.is_finite() && v > 0.0)
+    {
+        bail!("--carve-voxel must be positive, got {v}");
+    }
+    let masks = native_masks(&data_dir, &opts, &scene)?;
     let mesh_settings = MeshSettings {
+        fusion: args.fusion,
+        carve,
+        carve_voxel: args.carve_voxel,
+        masks,
         voxel: args.voxel,
         truncation: args.truncation,
         truncation_footprints: args.truncation_footprints,

@@ -75,6 +75,12 @@ fn trains_a_tiny_scene_and_writes_every_output() {
     assert!(psnr.is_finite() && psnr > 5.0, "{m}");
     let chamfer = m["mesh"]["chamfer"].as_f64().unwrap();
     assert!(chamfer.is_finite() && chamfer > 0.0, "{m}");
+    // The masks alone are scored beside the mesh, and both split by what the masks miss.
+    let masks = m["masks_alone"]["chamfer"].as_f64().unwrap();
+    assert!(masks.is_finite() && masks > 0.0, "{m}");
+    let blind = &m["mesh"]["hull_blind"];
+    assert!(blind["fraction"].as_f64().unwrap() >= 0.0, "{m}");
+    assert!(blind["rest"].as_f64().unwrap() > 0.0, "{m}");
     // Every view has a mask, so the surface set starts inside them and the mask term is on.
     let c: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("config.json")).unwrap()).unwrap();
@@ -95,6 +101,8 @@ fn trains_a_tiny_scene_and_writes_every_output() {
             &TINY_RUN[..],
             &[
                 "--resume",
+                "--fusion",
+                "tsdf",
                 "--depth-crossing",
                 "0.9",
                 "--depth-consistency",
@@ -151,6 +159,9 @@ fn bad_input_is_an_error_naming_the_problem() {
         ("--depth-consistency", "9", "--depth-consistency"),
         ("--snap-to-hull", "-1", "--snap-to-hull"),
         ("--snap-to-hull", "NaN", "--snap-to-hull"),
+        ("--snap-to-hull", "2", "--fusion tsdf"),
+        ("--carve-margin", "-1", "--carve-margin"),
+        ("--carve-views", "0", "--carve-views"),
     ] {
         let o = gtsr_train(&scene, &out, &[flag, value]);
         assert_eq!(o.status.code(), Some(1), "{}", text(&o));

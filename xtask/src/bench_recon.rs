@@ -1,5 +1,5 @@
 //! `cargo xtask bench-recon`: the full model, the paper's three ablations, the PGSR-like
-//! baseline and a mask-only visual hull on each scene; a markdown table and one combined
+//! baseline and the masks alone at the dataset's resolution on each scene; a markdown table and one combined
 //! error-against-time plot.
 
 use std::path::{Path, PathBuf};
@@ -11,8 +11,8 @@ use clap::Args;
 use gtsr_data::ply::TriMesh;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_eval::{
-    ReportRow, Timeline, markdown_table, plot_png, score_against_ground_truth, seed_summary_table,
-    visual_hull,
+    ReportRow, Timeline, markdown_table, masks_mesh, plot_png, score_against_ground_truth,
+    seed_summary_table,
 };
 
 /// Options of `bench-recon`.
@@ -30,17 +30,13 @@ pub struct BenchReconArgs {
     /// Longest image side (the default is what the README's table used).
     #[arg(long, default_value_t = 64)]
     pub resolution: u32,
-    /// Methods (gtsr-train presets; `--methods` alone: none); the visual hull is always added.
+    /// Methods (gtsr-train presets; `--methods` alone: none); the masks alone are always added.
     #[arg(long, num_args = 0.., default_values_t = ["full".to_string(), "no-pbr".into(), "no-fresnel".into(), "no-interior".into(), "pgsr".into()])]
     pub methods: Vec<String>,
     /// Re-extract and re-evaluate runs already finished in `--out` (same `--iterations`)
     /// instead of training them again: for changes to mesh extraction or evaluation.
     #[arg(long)]
     pub reuse: bool,
-    /// Visual hull resolution (voxels along the longest side of the ground truth's box grown
-    /// by 30 %; 640 gives about the voxel gtsr-train's fusion uses on the shared scenes).
-    #[arg(long, default_value_t = 640)]
-    pub hull_resolution: usize,
     /// The threshold T of each run's extra "crossing depth only" row (gtsr-train
     /// `--depth-crossing T --no-silhouette-carving`: the depth of the surface splat at which
     /// the transmittance falls to T, instead of the blend, fused alone).
@@ -68,7 +64,7 @@ pub struct BenchReconArgs {
     #[arg(long, num_args = 1.., default_values_t = [0u64])]
     pub seeds: Vec<u64>,
     /// Only the trained runs' rows: no other fusions of them, no masks-only rows and no
-    /// visual hull (for seed studies of the training).
+    /// masks alone (for seed studies of the training).
     #[arg(long)]
     pub training_only: bool,
 }
@@ -110,6 +106,11 @@ impl Metrics {
             scene: scene.into(),
             chamfer: self.mesh.as_ref().map(|x| x.chamfer),
             chamfer_whole_gt: self.mesh_whole_gt.as_ref().map(|x| x.chamfer),
+            hull_blind: self
+                .mesh
+                .as_ref()
+                .and_then(|x| x.hull_blind.as_ref())
+                .map(|b| b.blind),
             fscore: self.mesh.as_ref().map(|x| x.fscore),
             depth_err: self.test_depth.map(|d| d.depth_median_abs),
             depth_bias: self.test_depth.map(|d| d.depth_mean_signed),
@@ -123,6 +124,8 @@ impl Metrics {
 struct MeshM {
     chamfer: f64,
     fscore: f64,
+    #[serde(default)]
+    hull_blind: Option<gtsr_eval::HullBlind>,
 }
 
 /// A scene folder's name, as the tables and output folders use it.
@@ -141,17 +144,12 @@ pub(crate) fn ground_truth(scene: &gtsr_data::Scene, scene_dir: &Path) -> Result
     Ok(gtsr_data::ply::read_ply(&gt_path)?)
 }
 
-/// The visual hull of the training masks, evaluated and written to `out/mesh.ply`.
-fn hull_row(
-    scene_dir: &Path,
-    name: &str,
-    out: &Path,
-    resolution: u32,
-    hull_res: usize,
-) -> Result<ReportRow> {
+/// The masks alone at the dataset's own resolution ([`masks_mesh`]), evaluated (with the
+/// hull-blind split against themselves) and written to `out/mesh.ply`.
+fn masks_row(scene_dir: &Path, name: &str, out: &Path) -> Result<ReportRow> {
     let t0 = Instant::now();
     let opts = LoadOptions {
-        downscale: Downscale::MaxSide(resolution),
+        downscale: Downscale::None,
         ..LoadOptions::default()
     };
     let scene = load_scene(scene_dir, &opts)?;
@@ -160,24 +158,31 @@ fn hull_row(
         .iter()
         .filter_map(|v| v.mask.as_ref().map(|m| (v.camera, m.as_slice())))
         .collect();
-    if views.is_empty() {
-        bail!("{}: the visual hull needs masks", scene_dir.display());
+    if views.is_empty() || views.len() != scene.train.len() {
+        bail!(
+            "{}: the masks alone need a mask on every training view",
+            scene_dir.display()
+        );
     }
+    let mesh = masks_mesh(&views, None)?
+        .with_context(|| format!("{}: the masks are empty", scene_dir.display()))?;
+    let seconds = t0.elapsed().as_secs_f64();
     let gt = ground_truth(&scene, scene_dir)?;
-    let (lo, hi) = gt.bounds();
-    let pad = 0.15 * (hi - lo).max_element();
-    let hull = visual_hull(&views, lo - pad, hi + pad, hull_res)?;
-    let eyes: Vec<_> = scene.train.iter().map(|v| v.camera.centre()).collect();
-    let (m, whole) = score_against_ground_truth(&hull, &gt, &eyes)?;
+    let cameras: Vec<_> = scene.train.iter().map(|v| v.camera).collect();
+    let (m, whole) = score_against_ground_truth(&mesh, &gt, &cameras, Some(&mesh))?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    gtsr_data::ply::write_ply(&out.join("mesh.ply"), &hull)?;
+    gtsr_data::ply::write_ply(&out.join("mesh.ply"), &mesh)?;
     Ok(ReportRow {
-        method: "visual hull (masks only)".into(),
+        method: format!(
+            "masks alone ({}x{} masks, sub-voxel)",
+            views[0].0.width, views[0].0.height
+        ),
         scene: name.into(),
         chamfer: Some(m.chamfer),
         chamfer_whole_gt: Some(whole.chamfer),
+        hull_blind: m.hull_blind.map(|b| b.blind),
         fscore: Some(m.fscore),
-        seconds: Some(t0.elapsed().as_secs_f64()),
+        seconds: Some(seconds),
         ..ReportRow::default()
     })
 }
@@ -403,16 +408,29 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                 if args.training_only || m.mesh.is_none() {
                     continue;
                 }
-                let mut fusions = vec![Fusion {
-                    suffix: "depth-only",
-                    flags: vec!["--no-silhouette-carving".into()],
-                    label: format!("{label}, depth only (no silhouettes in the fusion)"),
-                }];
+                let mut fusions = vec![
+                    Fusion {
+                        suffix: "tsdf",
+                        flags: vec!["--fusion".into(), "tsdf".into()],
+                        label: format!("{label}, TSDF fusion with the masks' hull"),
+                    },
+                    Fusion {
+                        suffix: "depth-only",
+                        flags: vec![
+                            "--fusion".into(),
+                            "tsdf".into(),
+                            "--no-silhouette-carving".into(),
+                        ],
+                        label: format!("{label}, depth only (no silhouettes in the fusion)"),
+                    },
+                ];
                 if !args.no_crossing_rows {
                     let t = args.depth_crossing;
                     fusions.push(Fusion {
                         suffix: "crossing-depth-only",
                         flags: vec![
+                            "--fusion".into(),
+                            "tsdf".into(),
                             "--no-silhouette-carving".into(),
                             "--depth-crossing".into(),
                             t.to_string(),
@@ -429,6 +447,8 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                     fusions.push(Fusion {
                         suffix: "crossing-snapped",
                         flags: vec![
+                            "--fusion".into(),
+                            "tsdf".into(),
                             "--depth-crossing".into(),
                             t.to_string(),
                             "--snap-to-hull".into(),
@@ -459,13 +479,22 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
             for fusion in [
                 Fusion {
                     suffix: "silhouettes-only",
-                    flags: vec!["--silhouettes-only".into()],
+                    flags: vec![
+                        "--fusion".into(),
+                        "tsdf".into(),
+                        "--silhouettes-only".into(),
+                    ],
                     label: "masks only, fused as gtsr-train does (the full run's grid, no depth)"
                         .into(),
                 },
                 Fusion {
                     suffix: "silhouettes-only-inside-distance",
-                    flags: vec!["--silhouettes-only".into(), "--hull-inside-distance".into()],
+                    flags: vec![
+                        "--fusion".into(),
+                        "tsdf".into(),
+                        "--silhouettes-only".into(),
+                        "--hull-inside-distance".into(),
+                    ],
                     label: "masks only, the hull's own distance inside (--hull-inside-distance)"
                         .into(),
                 },
@@ -476,13 +505,11 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                 write_report(args, &rows, &trained)?;
             }
         }
-        println!("== {name} / visual hull");
-        rows.push(hull_row(
+        println!("== {name} / masks alone");
+        rows.push(masks_row(
             scene_dir,
             &name,
-            &args.out.join(&name).join("visual-hull"),
-            args.resolution,
-            args.hull_resolution,
+            &args.out.join(&name).join("masks-alone"),
         )?);
         write_report(args, &rows, &trained)?;
     }

@@ -62,6 +62,23 @@ pub struct FusionCeilingArgs {
     /// fused (gtsr-train's `--hull-inside-distance`).
     #[arg(long)]
     pub hull_inside_distance: bool,
+    /// Also carve the masks at the dataset's resolution with the true depth (gtsr-train's
+    /// default extraction, `gtsr_eval::carve`; with each of `--biases` too), beside the masks
+    /// alone.
+    #[arg(long)]
+    pub carve: bool,
+    /// Carving: agreeing views (gtsr-train's `--carve-views`).
+    #[arg(long, default_value_t = 3)]
+    pub carve_views: usize,
+    /// Carving: margin in footprints (gtsr-train's `--carve-margin`).
+    #[arg(long, default_value_t = 3.0)]
+    pub carve_margin: f32,
+    /// Carving: least free share (gtsr-train's `--carve-free-ratio`).
+    #[arg(long, default_value_t = 0.5)]
+    pub carve_free_ratio: f32,
+    /// Leave out the TSDF fusions (with `--carve`: only the carving rows).
+    #[arg(long)]
+    pub no_tsdf: bool,
 }
 
 /// One fusion: the label, whether the masks carve, whether depth is fused, the truncation,
@@ -82,6 +99,8 @@ struct Row {
     /// Chamfer against all of it.
     chamfer_whole: f64,
     fscore: f64,
+    /// Mean distance on the ground truth the masks miss (with `--carve`).
+    blind: Option<f64>,
     seconds: f64,
 }
 
@@ -217,10 +236,16 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
         });
     }
 
-    let eyes: Vec<Vec3> = scene.train.iter().map(|v| v.camera.centre()).collect();
+    let eyes: Vec<gtsr_data::Camera> = scene.train.iter().map(|v| v.camera).collect();
     let dir = args.out.join(name);
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     let mut rows = Vec::new();
+    if args.carve {
+        rows.extend(carve_rows(scene_dir, &scene, &depths, &gt, &eyes, args)?);
+    }
+    if args.no_tsdf {
+        variants.clear();
+    }
     for (n, var) in variants.iter().enumerate() {
         let t0 = Instant::now();
         let mut tsdf = TsdfVolume::new(lo, hi, voxel, var.truncation)?;
@@ -249,7 +274,7 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
         if mesh.triangles.is_empty() {
             bail!("{name}: {}: empty mesh", var.label);
         }
-        let (seen, whole) = score_against_ground_truth(&mesh, &gt, &eyes)?;
+        let (seen, whole) = score_against_ground_truth(&mesh, &gt, &eyes, None)?;
         let secs = t0.elapsed().as_secs_f64();
         println!(
             "  {}: chamfer x1e3 {:.2} (whole GT {:.2}), F-score {:.3}, {secs:.0} s",
@@ -264,8 +289,97 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
             chamfer: seen.chamfer,
             chamfer_whole: whole.chamfer,
             fscore: seen.fscore,
+            blind: None,
             seconds: secs,
         });
+    }
+    Ok(rows)
+}
+
+/// The masks alone at the dataset's resolution, and carved by the true depth (plus each bias).
+fn carve_rows(
+    scene_dir: &Path,
+    scene: &gtsr_data::Scene,
+    depths: &[Vec<f32>],
+    gt: &gtsr_data::ply::TriMesh,
+    eyes: &[gtsr_data::Camera],
+    args: &FusionCeilingArgs,
+) -> Result<Vec<Row>> {
+    let native = load_scene(
+        scene_dir,
+        &LoadOptions {
+            downscale: Downscale::None,
+            ..LoadOptions::default()
+        },
+    )?;
+    let masks: Vec<(gtsr_data::Camera, &[f32])> = native
+        .train
+        .iter()
+        .filter_map(|v| v.mask.as_deref().map(|m| (v.camera, m)))
+        .collect();
+    let (lo, hi) = gtsr_eval::hull::hull_box(&masks)?.context("empty masks")?;
+    let voxel = gtsr_eval::hull::MASKS_VOXEL_FOOTPRINTS
+        * median_pixel_footprint(masks.iter().map(|(c, _)| c), 0.5 * (lo + hi));
+    let t0 = Instant::now();
+    let hull = gtsr_eval::masks_mesh(&masks, Some(voxel))?.context("empty masks")?;
+    let mut rows = Vec::new();
+    let mut score = |label: String, mesh: &gtsr_data::ply::TriMesh, secs: f64| -> Result<()> {
+        let (seen, whole) = score_against_ground_truth(mesh, gt, eyes, Some(&hull))?;
+        let blind = seen.hull_blind.map(|b| b.blind);
+        println!(
+            "  {label}: chamfer x1e3 {:.2} (whole GT {:.2}), hull-blind {:.2}, {secs:.0} s",
+            1e3 * seen.chamfer,
+            1e3 * whole.chamfer,
+            1e3 * blind.unwrap_or(f64::NAN)
+        );
+        rows.push(Row {
+            label,
+            chamfer: seen.chamfer,
+            chamfer_whole: whole.chamfer,
+            fscore: seen.fscore,
+            blind,
+            seconds: secs,
+        });
+        Ok(())
+    };
+    score(
+        format!(
+            "masks alone ({}x{} masks, sub-voxel)",
+            masks[0].0.width, masks[0].0.height
+        ),
+        &hull,
+        t0.elapsed().as_secs_f64(),
+    )?;
+    let settings = gtsr_eval::CarveSettings {
+        min_views: args.carve_views,
+        margin_footprints: args.carve_margin,
+        min_free_ratio: args.carve_free_ratio,
+    };
+    for bias in std::iter::once(0.0).chain(args.biases.iter().copied()) {
+        let t0 = Instant::now();
+        let biased: Vec<Vec<f32>> = depths
+            .iter()
+            .map(|d| {
+                d.iter()
+                    .map(|&z| if z > 0.0 { (z + bias).max(0.0) } else { 0.0 })
+                    .collect()
+            })
+            .collect();
+        let maps: Vec<gtsr_eval::DepthMap> = scene
+            .train
+            .iter()
+            .zip(&biased)
+            .map(|(v, depth)| gtsr_eval::DepthMap {
+                camera: &v.camera,
+                depth,
+            })
+            .collect();
+        let mesh = gtsr_eval::carve_mesh(&masks, &maps, lo, hi, voxel, &settings)?;
+        score(
+            format!("masks carved by the true depth {bias:+} (gtsr-train's default extraction)"),
+            &mesh,
+            t0.elapsed().as_secs_f64(),
+        )?;
     }
     Ok(rows)
 }
@@ -273,17 +387,18 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
 /// Runs the experiment and writes `out/fusion-ceiling.md`.
 pub fn run(args: &FusionCeilingArgs) -> Result<()> {
     let mut md = String::from(
-        "| scene | fusion of the ground truth's depth maps | chamfer x1e3 | whole GT | F-score | time (s) |\n\
-         |---|---|---:|---:|---:|---:|\n",
+        "| scene | fusion of the ground truth's depth maps | chamfer x1e3 | whole GT | hull-blind x1e3 | F-score | time (s) |\n\
+         |---|---|---:|---:|---:|---:|---:|\n",
     );
     for scene_dir in &args.data {
         let name = scene_name(scene_dir);
         for r in scene_rows(scene_dir, &name, args)? {
             md += &format!(
-                "| {name} | {} | {:.2} | {:.2} | {:.3} | {:.0} |\n",
+                "| {name} | {} | {:.2} | {:.2} | {} | {:.3} | {:.0} |\n",
                 r.label,
                 1e3 * r.chamfer,
                 1e3 * r.chamfer_whole,
+                r.blind.map_or("-".into(), |b| format!("{:.2}", 1e3 * b)),
                 r.fscore,
                 r.seconds
             );

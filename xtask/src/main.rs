@@ -1,6 +1,7 @@
 //! Project tasks: `cargo xtask <command>`.
 
 mod bench_recon;
+mod diagnose_surface;
 mod fusion_ceiling;
 mod gen_scene;
 mod stability;
@@ -23,13 +24,17 @@ enum Cmd {
     /// meta.json) with the CPU path tracer of gtsr-data.
     GenScene(gen_scene::GenSceneArgs),
     /// Reconstruct each scene with the full model, the three ablations of the paper and the
-    /// PGSR-like baseline (via gtsr-train), plus a mask-only visual hull; write a markdown table
+    /// PGSR-like baseline (via gtsr-train), plus the masks alone at the dataset's resolution; write a markdown table
     /// and one combined error-against-time plot.
     BenchRecon(bench_recon::BenchReconArgs),
     /// Fuse the ground truth's own depth maps as gtsr-train fuses rendered ones (same box,
     /// voxel, masks, carving) at several truncations: the best chamfer any rendered depth can
     /// reach through that fusion, against the masks alone.
     FusionCeiling(fusion_ceiling::FusionCeilingArgs),
+    /// Where a trained run's surface Gaussians lie against the ground truth, how opaque they
+    /// are there, and which loss term pushes their opacity and position which way (development
+    /// scenes only: the ground truth diagnoses, never trains).
+    DiagnoseSurface(diagnose_surface::DiagnoseSurfaceArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -38,5 +43,6 @@ fn main() -> anyhow::Result<()> {
         Cmd::GenScene(args) => gen_scene::run(&args),
         Cmd::BenchRecon(args) => bench_recon::run(&args),
         Cmd::FusionCeiling(args) => fusion_ceiling::run(&args),
+        Cmd::DiagnoseSurface(args) => diagnose_surface::run(&args),
     }
 }

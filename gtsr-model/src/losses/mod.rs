@@ -6,4 +6,6 @@ pub mod regular;
 
 pub use geometric::{MultiViewTerm, interior_containment, multi_view, single_view};
 pub use photometric::{l1, photometric, ssim, ssim_map};
-pub use regular::{edge_aware_smoothness, flatten, layer_spread, mask_l1};
+pub use regular::{
+    edge_aware_smoothness, flatten, layer_spread, mask_deficit, mask_l1, opacity_entropy,
+};

@@ -1,4 +1,5 @@
-//! Regularisers: edge-aware material smoothness, flattening, and mask supervision.
+//! Regularisers: edge-aware material smoothness, flattening, mask supervision, opacity
+//! binarisation and layer spread.
 
 use burn::tensor::{Bool, Tensor};
 
@@ -27,6 +28,29 @@ pub fn flatten(scales: &Tensor<2>) -> Tensor<1> {
 /// Mean `|alpha - mask|`.
 pub fn mask_l1(alpha: &Tensor<2>, mask: &Tensor<2>) -> Tensor<1> {
     (alpha.clone() - mask.clone()).abs().mean()
+}
+
+/// Mean `max(mask - alpha, 0)`: only missing coverage inside the mask counts, not coverage
+/// spilling past it (which a Gaussian centred on the surface does in grazing views).
+pub fn mask_deficit(alpha: &Tensor<2>, mask: &Tensor<2>) -> Tensor<1> {
+    (mask.clone() - alpha.clone()).clamp_min(0.0).mean()
+}
+
+/// Opacity binarisation: the mean over Gaussians of the binary entropy of their opacities,
+/// `-(o ln o + (1 - o) ln(1 - o))` with `o = logistic(logits)` (in nats; 0 when every opacity
+/// is 0 or 1, `ln 2` at 0.5). Its gradient on a logit `x` is `-x o (1 - o)`, so descent
+/// pushes each opacity away from 0.5 towards the nearer end: with the mask term asking for
+/// full coverage, a stack of faint layers gives way to one opaque layer and transparent ones
+/// that densification prunes. Written in logits (`ln o = -softplus(-x)`), with the logits
+/// clamped to `[-30, 30]` (where the entropy is below 1e-11), finite for any logit.
+pub fn opacity_entropy(logits: &Tensor<2>) -> Tensor<1> {
+    let x = logits.clone().clamp(-30.0, 30.0);
+    let o = crate::gaussians::logistic(x.clone());
+    // softplus(x) = ln(1 + e^x), computed stably as max(x, 0) + ln(1 + e^-|x|).
+    let softplus = |t: Tensor<2>| t.clone().clamp_min(0.0) + (t.abs().neg().exp() + 1.0).log();
+    // -ln o = softplus(-x), -ln(1 - o) = softplus(x).
+    let h = o.clone() * softplus(x.clone().neg()) + (o.neg() + 1.0) * softplus(x);
+    h.mean()
 }
 
 /// Softening of [`layer_spread`]'s square root, in pixels: keeps its gradient bounded where

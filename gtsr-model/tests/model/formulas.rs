@@ -671,3 +671,60 @@ fn initial_scales_are_the_mean_three_neighbour_distance() {
         "every grid point has three neighbours at 0.1"
     );
 }
+
+#[test]
+fn opacity_entropy_is_the_binary_entropy_and_stays_finite_at_extreme_logits() {
+    let device = Device::ndarray().autodiff();
+    let xs = [0.0f64, 2.0, -3.0, 80.0, -80.0, 1e4, -1e4];
+    let t = Tensor::<2>::from_data(
+        TensorData::new(
+            xs.iter().map(|x| *x as f32).collect::<Vec<_>>(),
+            [xs.len(), 1],
+        ),
+        &device,
+    )
+    .require_grad();
+    let loss = losses::opacity_entropy(&t);
+    let value = loss.clone().into_scalar::<f64>();
+    let expected: f64 = xs
+        .iter()
+        .map(|&x| {
+            let o = 1.0 / (1.0 + (-x).exp());
+            let h = |p: f64| if p > 0.0 { -p * p.ln() } else { 0.0 };
+            h(o) + h(1.0 - o)
+        })
+        .sum::<f64>()
+        / xs.len() as f64;
+    assert!(
+        (value - expected).abs() < 1e-5,
+        "{value} against {expected}"
+    );
+    let grads = loss.backward();
+    let g = host_vec(t.grad(&grads).expect("a gradient"));
+    for (x, g) in xs.iter().zip(&g) {
+        assert!(g.is_finite(), "logit {x}: gradient {g}");
+        // d/dx of the mean entropy: -x o (1 - o) / n; descent pushes away from 0.
+        let o = 1.0 / (1.0 + (-x).exp());
+        let want = -x * o * (1.0 - o) / xs.len() as f64;
+        assert!(
+            (*g as f64 - want).abs() < 1e-4,
+            "logit {x}: {g} against {want}"
+        );
+    }
+}
+
+#[test]
+fn the_mask_deficit_counts_only_missing_coverage_inside_the_mask() {
+    let device = Device::ndarray().autodiff();
+    let t = |v: Vec<f32>| Tensor::<2>::from_data(TensorData::new(v, [2, 2]), &device);
+    let alpha = t(vec![0.25, 0.75, 0.5, 0.125]).require_grad();
+    let mask = t(vec![1.0, 1.0, 0.0, 0.0]);
+    // Inside: 0.75 and 0.25 missing; outside: the 0.5 and 0.125 spills do not count.
+    let loss = losses::mask_deficit(&alpha, &mask);
+    assert!((loss.clone().into_scalar::<f64>() - 1.0 / 4.0).abs() < 1e-6);
+    let g = host_vec(alpha.grad(&loss.backward()).expect("a gradient"));
+    assert_eq!(g, vec![-0.25, -0.25, 0.0, 0.0]);
+    // The L1 term counts both.
+    let l1 = losses::mask_l1(&alpha, &mask).into_scalar::<f64>();
+    assert!((l1 - 1.625 / 4.0).abs() < 1e-6);
+}

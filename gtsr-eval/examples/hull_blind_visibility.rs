@@ -1,0 +1,95 @@
+//! How many training images show the ground truth that the masks miss: samples 20,000 points
+//! on a scene's `mesh.ply`, splits them by their distance to the masks alone (hull-blind:
+//! farther than 0.01), and counts for each in how many training views at the dataset's
+//! resolution the ground truth's own first hit at the sample's pixel lies within 0.011 of it.
+//!
+//! ```text
+//! cargo run --release -p gtsr-eval --example hull_blind_visibility -- ../shared/data/amber_ingot
+//! ```
+
+use std::path::PathBuf;
+
+use gtsr_data::{Downscale, LoadOptions, load_scene};
+use gtsr_eval::{MeshRaycaster, SignedDistance, masks_mesh, sample_surface};
+
+/// Lower bounds of the view-count bins.
+const BINS: [usize; 6] = [0, 1, 2, 3, 5, 10];
+
+fn main() -> anyhow::Result<()> {
+    let dir: PathBuf = std::env::args()
+        .nth(1)
+        .ok_or_else(|| anyhow::anyhow!("usage: hull_blind_visibility SCENE_DIR"))?
+        .into();
+    let opts = LoadOptions {
+        downscale: Downscale::None,
+        ..LoadOptions::default()
+    };
+    let scene = load_scene(&dir, &opts)?;
+    let masks: Vec<_> = scene
+        .train
+        .iter()
+        .map(|v| {
+            v.mask
+                .as_deref()
+                .map(|m| (v.camera, m))
+                .ok_or_else(|| anyhow::anyhow!("view {} has no mask", v.name))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let hull = masks_mesh(&masks, None)?.ok_or_else(|| anyhow::anyhow!("empty masks"))?;
+    let gt_path = scene
+        .mesh_path
+        .clone()
+        .ok_or_else(|| anyhow::anyhow!("{}: no mesh.ply", dir.display()))?;
+    let gt = gtsr_data::ply::read_ply(&gt_path)?;
+    let to_hull = SignedDistance::new(&hull, "masks' mesh")?;
+    let caster = MeshRaycaster::new(&gt, "ground truth")?;
+    let maps: Vec<_> = scene
+        .train
+        .iter()
+        .map(|v| caster.render(&v.camera))
+        .collect();
+    let samples = sample_surface(&gt, 20_000, 1, "ground truth")?;
+    let (mut blind, mut rest) = ([0usize; BINS.len()], [0usize; BINS.len()]);
+    let mut blind_dist = [0f64; BINS.len()];
+    for p in &samples.points {
+        let d = to_hull.query(*p).0.abs();
+        let views = scene
+            .train
+            .iter()
+            .zip(&maps)
+            .filter(|(v, m)| {
+                v.camera.project(*p).is_some_and(|(uv, z)| {
+                    let (i, j) = (uv.x.floor(), uv.y.floor());
+                    i >= 0.0 && j >= 0.0 && (i as usize) < m.width && (j as usize) < m.height && {
+                        let hit = m.depth[j as usize * m.width + i as usize];
+                        hit > 0.0 && (hit - z).abs() < 0.011
+                    }
+                })
+            })
+            .count();
+        let b = BINS.iter().rposition(|t| views >= *t).unwrap_or(0);
+        if d > 0.01 {
+            blind[b] += 1;
+            blind_dist[b] += d as f64;
+        } else {
+            rest[b] += 1;
+        }
+    }
+    println!("ground-truth samples by the number of training images that show them");
+    println!("| views | hull-blind | mean distance to the masks | the rest |");
+    println!("|---|---:|---:|---:|");
+    for (k, lo) in BINS.iter().enumerate() {
+        let label = match BINS.get(k + 1) {
+            Some(hi) if hi - lo == 1 => format!("{lo}"),
+            Some(hi) => format!("{lo}-{}", hi - 1),
+            None => format!(">= {lo}"),
+        };
+        let mean = if blind[k] > 0 {
+            format!("{:.3}", blind_dist[k] / blind[k] as f64)
+        } else {
+            "-".into()
+        };
+        println!("| {label} | {} | {mean} | {} |", blind[k], rest[k]);
+    }
+    Ok(())
+}

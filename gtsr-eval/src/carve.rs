@@ -1,0 +1,198 @@
+//! Mesh extraction for masked scenes: the masks bound the object, the rendered depth carves
+//! inside that bound where enough views agree.
+//!
+//! The field handed to marching cubes, per grid point `p` (world units, positive outside):
+//!
+//! * `hull(p)`: the masks' signed distance ([`crate::hull::silhouette_distance`]), from the
+//!   masks at the dataset's own resolution. Where it is positive (outside some mask) it is the
+//!   field, so the surface never leaves the masks' hull, and it is placed between voxels with
+//!   the masks' sub-pixel edge.
+//! * inside the hull, each depth view that sees `p` in its image, at a pixel with a depth `d`
+//!   (`> 0`; nearest pixel), offers `d - z(p) - margin`: positive when `p` lies in front of
+//!   the rendered surface by more than `margin` ([`CarveSettings::margin_footprints`] of that
+//!   view's pixel footprint at `p`), i.e. in the free space the view looked through. Views
+//!   that see `p` behind their surface (occluded, or inside) offer a negative value.
+//! * The views then fall in three groups by `s = d - z(p)`: *free* (`s > margin`: the view
+//!   looked through `p`), *near* (`|s| <= margin`: `p` is where the view saw its surface) and
+//!   *occluded* (`s < -margin`: something in front hides `p`, which says nothing about it).
+//!   `p` is carved when at least [`CarveSettings::min_views`] views are free and they are at
+//!   least [`CarveSettings::min_free_ratio`] of the free and near ones together: a point just
+//!   under the true surface, which the views that see that surface put *near*, survives the
+//!   few views whose rendered depth runs too deep there, while a point in a concavity, near no
+//!   surface, has no near votes against its free ones (the stability test of multi-view depth
+//!   fusion, as in Merrell et al. 2007).
+//! * Where carved, the field is `max(hull(p), carve(p))` with `carve(p)` the
+//!   `min_views`-th largest `s - margin` (positive), so the carved surface lies `margin` in
+//!   front of the rendered depth; elsewhere it is `hull(p)`. Where no depth says otherwise the
+//!   masks decide.
+//!
+//! Silhouettes cannot see concavities (the moat around a dome, the inside of a cup); rendered
+//! depth can, and carving is the only thing it may do here: it never adds volume beyond the
+//! masks. The margin trades how much of a concavity is recovered (the carved surface lies
+//! `margin` in front of the rendered depth) against the rendered depth's own error.
+
+use glam::Vec3;
+use gtsr_data::Camera;
+use gtsr_data::ply::TriMesh;
+
+use crate::error::{EvalError, Result};
+use crate::hull::{close_box, grid_dims, in_image, silhouette_distance};
+use crate::marching::{Grid, marching_cubes};
+use crate::mesh::largest_component;
+
+/// The most views [`CarveSettings::min_views`] may ask for.
+pub const MAX_CARVE_VIEWS: usize = 16;
+
+/// How many depth views must agree, and by how much, before a point inside the masks' hull is
+/// carved.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CarveSettings {
+    /// Views that must each put the point in front of their rendered surface (1 to
+    /// [`MAX_CARVE_VIEWS`]).
+    pub min_views: usize,
+    /// How far in front, in that view's pixel footprints at the point (finite, `>= 0`).
+    pub margin_footprints: f32,
+    /// The least share of free views among the free and near ones (in `[0, 1]`).
+    pub min_free_ratio: f32,
+}
+
+impl Default for CarveSettings {
+    fn default() -> Self {
+        CarveSettings {
+            min_views: 3,
+            margin_footprints: 3.0,
+            min_free_ratio: 0.5,
+        }
+    }
+}
+
+impl CarveSettings {
+    /// Checks the ranges documented on the fields.
+    pub fn validate(&self) -> Result<()> {
+        if !(1..=MAX_CARVE_VIEWS).contains(&self.min_views) {
+            return Err(EvalError::InvalidArgument(format!(
+                "carving needs 1 to {MAX_CARVE_VIEWS} agreeing views, not {}",
+                self.min_views
+            )));
+        }
+        if !(self.margin_footprints.is_finite() && self.margin_footprints >= 0.0) {
+            return Err(EvalError::InvalidArgument(format!(
+                "the carving margin must be finite and >= 0 footprints, not {}",
+                self.margin_footprints
+            )));
+        }
+        if !(0.0..=1.0).contains(&self.min_free_ratio) {
+            return Err(EvalError::InvalidArgument(format!(
+                "the carving's free share must be in [0, 1], not {}",
+                self.min_free_ratio
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// One rendered depth map: z-depth along the camera axis, row-major `width * height` of its
+/// camera, `<= 0` or non-finite where there is none.
+#[derive(Clone, Copy, Debug)]
+pub struct DepthMap<'a> {
+    /// The camera the depth was rendered from.
+    pub camera: &'a Camera,
+    /// The depth values.
+    pub depth: &'a [f32],
+}
+
+/// The carving value at `p` (module documentation): the `min_views`-th largest `s - margin`
+/// over the free views when `p` is carved, `None` when it is not.
+fn carve_at(depths: &[DepthMap], p: Vec3, settings: &CarveSettings) -> Option<f32> {
+    let k = settings.min_views;
+    // The k largest free offers so far, descending.
+    let mut top = [f32::NEG_INFINITY; MAX_CARVE_VIEWS];
+    let (mut free, mut near) = (0usize, 0usize);
+    for dm in depths {
+        let cam = dm.camera;
+        let Some((uv, z)) = in_image(cam, p) else {
+            continue;
+        };
+        let pix = (uv.y as usize).min(cam.height as usize - 1) * cam.width as usize
+            + (uv.x as usize).min(cam.width as usize - 1);
+        let d = dm.depth[pix];
+        if !(d.is_finite() && d > 0.0) {
+            continue;
+        }
+        let margin = settings.margin_footprints * z / cam.fx;
+        let s = d - z;
+        if s < -margin {
+            continue;
+        }
+        if s <= margin {
+            near += 1;
+            continue;
+        }
+        free += 1;
+        let offer = s - margin;
+        if offer > top[k - 1] {
+            let mut i = k - 1;
+            while i > 0 && top[i - 1] < offer {
+                top[i] = top[i - 1];
+                i -= 1;
+            }
+            top[i] = offer;
+        }
+    }
+    let carved = free >= k && free as f32 >= settings.min_free_ratio * (free + near) as f32;
+    carved.then(|| top[k - 1])
+}
+
+/// The carved field over `[min, max]` at spacing `voxel` (module documentation): `masks` the
+/// views' cameras and masks (`mask >= 0.5` is the object; any resolution, the dataset's own
+/// is best), `depths` the rendered depth maps (any number, any resolution). Points no mask
+/// sees and the box faces are outside. Errors on empty masks, mismatched sizes, an empty or
+/// non-finite box, a bad voxel or settings, or a grid over 2^31 points.
+pub fn carve_grid(
+    masks: &[(Camera, &[f32])],
+    depths: &[DepthMap],
+    min: Vec3,
+    max: Vec3,
+    voxel: f32,
+    settings: &CarveSettings,
+) -> Result<Grid> {
+    settings.validate()?;
+    let dims = grid_dims(masks, min, max, voxel)?;
+    for (k, dm) in depths.iter().enumerate() {
+        let n = dm.camera.width as usize * dm.camera.height as usize;
+        if dm.depth.len() != n || n == 0 {
+            return Err(EvalError::size(
+                &format!("depth map {k}"),
+                format!("{}x{} = {n} (non-zero)", dm.camera.width, dm.camera.height),
+                dm.depth.len(),
+            ));
+        }
+    }
+    let mut grid = Grid::from_fn(min, voxel, dims, |p| {
+        let Some(hull) = silhouette_distance(masks, p) else {
+            return voxel;
+        };
+        if hull >= 0.0 {
+            return hull;
+        }
+        match carve_at(depths, p, settings) {
+            Some(c) => hull.max(c),
+            None => hull,
+        }
+    });
+    close_box(&mut grid, voxel);
+    Ok(grid)
+}
+
+/// [`carve_grid`] through marching cubes, the largest component: closed and outward oriented.
+pub fn carve_mesh(
+    masks: &[(Camera, &[f32])],
+    depths: &[DepthMap],
+    min: Vec3,
+    max: Vec3,
+    voxel: f32,
+    settings: &CarveSettings,
+) -> Result<TriMesh> {
+    let grid = carve_grid(masks, depths, min, max, voxel, settings)?;
+    Ok(largest_component(&marching_cubes(&grid, 0.0)))
+}

@@ -1,0 +1,276 @@
+//! The masks bound, the depth carves: a cube with a pit in its top face, which no silhouette
+//! shows and exact depth maps do.
+
+mod common;
+
+use common::cameras_around;
+use glam::Vec3;
+use gtsr_data::Camera;
+use gtsr_eval::hull::{masks_grid, silhouette_distance};
+use gtsr_eval::{
+    CarveSettings, DepthMap, carve_grid, carve_mesh, masks_mesh, score_against_ground_truth,
+};
+
+const HALF: f32 = 0.5;
+const PIT_RADIUS: f32 = 0.2;
+const PIT_FLOOR: f32 = 0.1;
+
+/// Signed distance (an exact bound is enough for sphere tracing) of the cube
+/// `[-0.5, 0.5]^3` minus the pit `x^2 + z^2 < 0.2^2, y > 0.1` (open to the top face y = 0.5).
+fn sdf(p: Vec3) -> f32 {
+    let q = p.abs() - Vec3::splat(HALF);
+    let cube = q.max(Vec3::ZERO).length() + q.max_element().min(0.0);
+    let radial = (p.x * p.x + p.z * p.z).sqrt() - PIT_RADIUS;
+    let floor = PIT_FLOOR - p.y;
+    let pit = radial.max(floor);
+    cube.max(-pit)
+}
+
+/// Z-depth (0 where the ray misses) and mask of the pitted cube, per pixel centre.
+fn render(cam: &Camera) -> (Vec<f32>, Vec<f32>) {
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let to_world = cam.world_to_camera.inverse();
+    let eye = to_world.transform_point3(Vec3::ZERO);
+    let mut depth = vec![0.0; w * h];
+    let mut mask = vec![0.0; w * h];
+    for j in 0..h {
+        for i in 0..w {
+            let d_cam = cam.camera_direction(i as f32 + 0.5, j as f32 + 0.5);
+            let dir = to_world.transform_vector3(d_cam).normalize();
+            let mut t = 0.0f32;
+            // Rays grazing a face march in tiny steps: a floor on the step keeps every ray
+            // converging (to within that floor of the surface).
+            for _ in 0..4000 {
+                let s = sdf(eye + t * dir);
+                if s < 2e-4 {
+                    // z-depth: distance along the ray over its length per unit z.
+                    depth[j * w + i] = t / d_cam.length();
+                    mask[j * w + i] = 1.0;
+                    break;
+                }
+                t += s.max(2e-4);
+                if t > 20.0 {
+                    break;
+                }
+            }
+        }
+    }
+    (depth, mask)
+}
+
+struct Scene {
+    cams: Vec<Camera>,
+    depths: Vec<Vec<f32>>,
+    masks: Vec<Vec<f32>>,
+}
+
+fn scene() -> Scene {
+    let cams = cameras_around(Vec3::ZERO, 4.0, 40, 0.6, 96);
+    let (depths, masks) = cams.iter().map(render).unzip();
+    Scene {
+        cams,
+        depths,
+        masks,
+    }
+}
+
+fn mask_views(s: &Scene) -> Vec<(Camera, &[f32])> {
+    s.cams
+        .iter()
+        .copied()
+        .zip(s.masks.iter().map(|m| &m[..]))
+        .collect()
+}
+
+fn depth_maps(s: &Scene) -> Vec<DepthMap<'_>> {
+    s.cams
+        .iter()
+        .zip(&s.depths)
+        .map(|(camera, depth)| DepthMap { camera, depth })
+        .collect()
+}
+
+/// The field's value at the grid point nearest `p`.
+fn at(grid: &gtsr_eval::Grid, p: Vec3) -> f32 {
+    let c = ((p - grid.origin) / grid.voxel).round();
+    grid.values[grid.index(c.x as usize, c.y as usize, c.z as usize)]
+}
+
+const LO: Vec3 = Vec3::splat(-0.7);
+const HI: Vec3 = Vec3::splat(0.7);
+const VOXEL: f32 = 0.025;
+
+#[test]
+fn masks_fill_the_pit_and_depth_carves_it() {
+    let s = scene();
+    let masks = mask_views(&s);
+    let hull = masks_grid(&masks, LO, HI, VOXEL).unwrap();
+    let in_pit = Vec3::new(0.0, 0.35, 0.0);
+    let in_wall = Vec3::new(0.35, 0.35, 0.0);
+    let centre = Vec3::new(0.0, -0.2, 0.0);
+    let outside = Vec3::new(0.65, 0.0, 0.0);
+    assert!(at(&hull, in_pit) < 0.0, "silhouettes cannot see the pit");
+    assert!(silhouette_distance(&masks, outside).unwrap() > 0.0);
+
+    let carved = carve_grid(
+        &masks,
+        &depth_maps(&s),
+        LO,
+        HI,
+        VOXEL,
+        &CarveSettings::default(),
+    )
+    .unwrap();
+    assert!(at(&carved, in_pit) > 0.0, "the depth carves the pit");
+    assert!(at(&carved, in_wall) < 0.0, "but not the wall beside it");
+    assert!(at(&carved, centre) < 0.0, "nor the body");
+    assert!(at(&carved, outside) > 0.0);
+    // Carving never adds volume: the field is at least the masks' everywhere.
+    for (c, h) in carved.values.iter().zip(&hull.values) {
+        assert!(c >= h, "carved {c} below the masks' {h}");
+    }
+}
+
+#[test]
+fn one_wrong_depth_map_does_not_dig_into_the_object() {
+    let s = scene();
+    let masks = mask_views(&s);
+    // One view claims the surface lies far behind everything it sees.
+    let mut depths = s.depths.clone();
+    for d in depths[0].iter_mut().filter(|d| **d > 0.0) {
+        *d += 3.0;
+    }
+    let maps: Vec<DepthMap> = s
+        .cams
+        .iter()
+        .zip(&depths)
+        .map(|(camera, depth)| DepthMap { camera, depth })
+        .collect();
+    let settings = CarveSettings::default();
+    let carved = carve_grid(&masks, &maps, LO, HI, VOXEL, &settings).unwrap();
+    let honest = carve_grid(&masks, &depth_maps(&s), LO, HI, VOXEL, &settings).unwrap();
+    // No point of the solid (deeper than the margin) is carved, and the wrong view changes
+    // almost nothing.
+    let dug = |g: &gtsr_eval::Grid| {
+        let [nx, ny, nz] = g.dims;
+        let mut n = 0;
+        for k in 0..nz {
+            for j in 0..ny {
+                for i in 0..nx {
+                    if sdf(g.point(i, j, k)) < -0.05 && g.values[g.index(i, j, k)] > 0.0 {
+                        n += 1;
+                    }
+                }
+            }
+        }
+        n
+    };
+    assert_eq!(dug(&honest), 0, "carved into the solid by exact depth");
+    assert_eq!(dug(&carved), 0, "carved into the solid by one wrong view");
+    let changed = carved
+        .values
+        .iter()
+        .zip(&honest.values)
+        .filter(|(c, h)| (**c > 0.0) != (**h > 0.0))
+        .count();
+    assert!(
+        changed * 200 < carved.values.len(),
+        "{changed} points changed side"
+    );
+    // With one view enough, the wrong one digs.
+    let single = CarveSettings {
+        min_views: 1,
+        ..settings
+    };
+    let carved = carve_grid(&masks, &maps, LO, HI, VOXEL, &single).unwrap();
+    assert!(dug(&carved) > 0);
+}
+
+#[test]
+fn the_carved_mesh_beats_the_masks_on_the_pit() {
+    let s = scene();
+    let masks = mask_views(&s);
+    let gt = carve_mesh(
+        &masks,
+        &depth_maps(&s),
+        LO,
+        HI,
+        0.01,
+        &CarveSettings {
+            min_views: 1,
+            margin_footprints: 0.0,
+            min_free_ratio: 0.0,
+        },
+    )
+    .unwrap();
+    let hull = masks_mesh(&masks, Some(VOXEL)).unwrap().expect("a hull");
+    let carved = carve_mesh(
+        &masks,
+        &depth_maps(&s),
+        LO,
+        HI,
+        VOXEL,
+        &CarveSettings::default(),
+    )
+    .unwrap();
+    let (h, _) = score_against_ground_truth(&hull, &gt, &s.cams, Some(&hull)).unwrap();
+    let (c, _) = score_against_ground_truth(&carved, &gt, &s.cams, Some(&hull)).unwrap();
+    let (hb, cb) = (h.hull_blind.unwrap(), c.hull_blind.unwrap());
+    // The pit's walls and floor are hull-blind; the masks miss them by their depth.
+    assert!(hb.fraction > 0.02, "{hb:?}");
+    assert!((hb.blind - hb.hull_on_blind).abs() < 1e-6, "{hb:?}");
+    assert!(cb.blind < 0.5 * hb.blind, "carved {cb:?} masks {hb:?}");
+    assert!(
+        c.chamfer < h.chamfer,
+        "carved {} masks {}",
+        c.chamfer,
+        h.chamfer
+    );
+}
+
+#[test]
+fn carving_checks_its_inputs() {
+    let s = scene();
+    let masks = mask_views(&s);
+    let maps = depth_maps(&s);
+    for bad in [
+        CarveSettings {
+            min_views: 0,
+            margin_footprints: 1.0,
+            ..CarveSettings::default()
+        },
+        CarveSettings {
+            min_views: 17,
+            margin_footprints: 1.0,
+            ..CarveSettings::default()
+        },
+        CarveSettings {
+            min_views: 2,
+            margin_footprints: f32::NAN,
+            ..CarveSettings::default()
+        },
+        CarveSettings {
+            min_views: 2,
+            margin_footprints: -1.0,
+            ..CarveSettings::default()
+        },
+        CarveSettings {
+            min_free_ratio: 1.5,
+            ..CarveSettings::default()
+        },
+    ] {
+        assert!(
+            carve_grid(&masks, &maps, LO, HI, VOXEL, &bad).is_err(),
+            "{bad:?}"
+        );
+    }
+    let ok = CarveSettings::default();
+    let short = [DepthMap {
+        camera: &s.cams[0],
+        depth: &s.depths[0][1..],
+    }];
+    assert!(carve_grid(&masks, &short, LO, HI, VOXEL, &ok).is_err());
+    assert!(carve_grid(&[], &maps, LO, HI, VOXEL, &ok).is_err());
+    assert!(carve_grid(&masks, &maps, HI, LO, VOXEL, &ok).is_err());
+    assert!(carve_grid(&masks, &maps, LO, HI, 0.0, &ok).is_err());
+}

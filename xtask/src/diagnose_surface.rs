@@ -1,0 +1,256 @@
+//! `cargo xtask diagnose-surface`: where a trained run's surface Gaussians lie against the
+//! ground truth, how opaque they are there, and which loss term pushes their opacity and their
+//! position along the outward normal which way. For the development scenes only: the ground
+//! truth diagnoses, it never trains.
+//!
+//! Each surface centre is binned by its signed distance to the ground truth (positive outside,
+//! along the closest triangle's outward normal), in training-pixel footprints. Per bin: the
+//! number of centres, their opacity percentiles, and per loss term the mean descent direction
+//! (minus the gradient, summed over the diagnosed views) on the opacity logit (positive: the
+//! term makes the Gaussian more opaque) and on the centre's displacement along the outward
+//! normal (positive: the term pushes it outward). Every term is differentiated on its own
+//! forward pass, at the run's last step's settings.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use burn::tensor::Device;
+use clap::Args;
+use glam::Vec3;
+use gtsr_data::{Downscale, LoadOptions, load_scene};
+use gtsr_eval::SignedDistance;
+use gtsr_eval::tsdf::median_pixel_footprint;
+use gtsr_model::checkpoint;
+use gtsr_model::gaussians::{ParamKind, host_vec, logistic};
+use gtsr_model::views::upload_views;
+
+use crate::bench_recon::{ground_truth, scene_name};
+
+/// Options of `diagnose-surface`.
+#[derive(Args, Debug)]
+pub struct DiagnoseSurfaceArgs {
+    /// The gtsr-train output folder (its `checkpoint.safetensors` and `config.json`).
+    #[arg(long)]
+    pub run: PathBuf,
+    /// The scene it was trained on (Blender/NeRF with `mesh.ply`).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Training views differentiated (the run's last steps' views, going back).
+    #[arg(long, default_value_t = 8)]
+    pub views: usize,
+    /// Where the markdown report goes (default: `diagnosis.md` in the run folder).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Bin edges in training-pixel footprints (signed distance to the ground truth).
+const EDGES: [f32; 9] = [-4.0, -2.0, -1.0, -0.5, -0.25, 0.25, 0.5, 1.0, 2.0];
+
+fn bin_of(sd_fp: f32) -> usize {
+    EDGES.iter().take_while(|e| sd_fp >= **e).count()
+}
+
+fn bin_label(b: usize) -> String {
+    match b {
+        0 => format!("< {}", EDGES[0]),
+        b if b == EDGES.len() => format!(">= {}", EDGES[EDGES.len() - 1]),
+        b => format!("[{}, {})", EDGES[b - 1], EDGES[b]),
+    }
+}
+
+fn percentile(sorted: &[f32], q: f64) -> f32 {
+    if sorted.is_empty() {
+        return f32::NAN;
+    }
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+#[derive(serde::Deserialize)]
+struct RunConfig {
+    resolution: u32,
+}
+
+/// Runs the diagnosis and prints (and writes) the report.
+#[allow(deprecated)] // burn-ndarray: the design card keeps it as the CPU backend.
+pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
+    if args.views == 0 {
+        bail!("--views must be at least 1");
+    }
+    let cfg_path = args.run.join("config.json");
+    let cfg: RunConfig = serde_json::from_str(
+        &std::fs::read_to_string(&cfg_path)
+            .with_context(|| format!("reading {}", cfg_path.display()))?,
+    )
+    .with_context(|| format!("parsing {}", cfg_path.display()))?;
+    let scene = load_scene(
+        &args.data,
+        &LoadOptions {
+            downscale: Downscale::MaxSide(cfg.resolution),
+            ..LoadOptions::default()
+        },
+    )
+    .with_context(|| format!("loading {}", args.data.display()))?;
+    let gt = ground_truth(&scene, &args.data)?;
+    let sdf = SignedDistance::new(&gt, "ground-truth mesh")?;
+    let device = Device::ndarray().autodiff();
+    let views = upload_views(&scene.train, &device)?;
+    let ckpt = args.run.join("checkpoint.safetensors");
+    let mut trainer = checkpoint::load(&ckpt, views, &device)
+        .with_context(|| format!("loading {}", ckpt.display()))?;
+    let last = trainer.step.saturating_sub(1);
+    if !trainer.is_stage2(last) {
+        bail!("{}: the run has not reached stage 2", args.run.display());
+    }
+    let footprint = median_pixel_footprint(scene.train.iter().map(|v| &v.camera), Vec3::ZERO);
+
+    let surface = trainer.model.surface.to_host();
+    let (means, _) = surface.column(ParamKind::Means).context("means")?;
+    let means: Vec<Vec3> = means.chunks_exact(3).map(Vec3::from_slice).collect();
+    let opacity = host_vec(logistic(
+        trainer.model.surface.req(ParamKind::Opacity).clone(),
+    ));
+    let n = means.len();
+    let located: Vec<(f32, Vec3)> = means.iter().map(|p| sdf.query(*p)).collect();
+    let bins: Vec<usize> = located.iter().map(|(d, _)| bin_of(d / footprint)).collect();
+    let nb = EDGES.len() + 1;
+
+    // Per term: per bin, summed descent on the logit and along the normal.
+    let mut term_names: Vec<&'static str> = Vec::new();
+    let mut sums: Vec<Vec<(f64, f64)>> = Vec::new();
+    for k in 0..args.views {
+        let step = last.saturating_sub(k);
+        let count = trainer.forward(step)?.terms.len();
+        for t in 0..count {
+            let f = trainer.forward(step)?;
+            let (name, term) = f.terms[t].clone();
+            drop(f);
+            let grads = term.backward();
+            let s = &trainer.model.surface;
+            let g_logit = s
+                .req(ParamKind::Opacity)
+                .grad(&grads)
+                .map(host_vec)
+                .unwrap_or_else(|| vec![0.0; n]);
+            let g_means = s
+                .req(ParamKind::Means)
+                .grad(&grads)
+                .map(host_vec)
+                .unwrap_or_else(|| vec![0.0; 3 * n]);
+            let ti = match term_names.iter().position(|x| *x == name) {
+                Some(i) => i,
+                None => {
+                    term_names.push(name);
+                    sums.push(vec![(0.0, 0.0); nb]);
+                    term_names.len() - 1
+                }
+            };
+            for i in 0..n {
+                let g = Vec3::from_slice(&g_means[3 * i..3 * i + 3]);
+                let normal = located[i].1;
+                let b = bins[i];
+                sums[ti][b].0 -= g_logit[i] as f64;
+                sums[ti][b].1 -= g.dot(normal) as f64;
+            }
+        }
+        println!("view {} of {} differentiated", k + 1, args.views);
+    }
+
+    let mut counts = vec![0usize; nb];
+    let mut op_bins: Vec<Vec<f32>> = vec![Vec::new(); nb];
+    for i in 0..n {
+        counts[bins[i]] += 1;
+        op_bins[bins[i]].push(opacity[i]);
+    }
+    for o in op_bins.iter_mut() {
+        o.sort_by(f32::total_cmp);
+    }
+    let mut md = format!(
+        "# Surface diagnosis of {} ({}, step {})\n\n{} surface Gaussians; training-pixel \
+         footprint {:.4}; {} views differentiated. Signed distance to the ground truth in \
+         footprints (+: outside). Descent = minus the gradient summed over the views, mean per \
+         Gaussian of the bin: on the opacity logit (+: more opaque) and along the outward normal \
+         (+: outward), x1e6.\n\n",
+        args.run.display(),
+        scene_name(&args.data),
+        trainer.step,
+        n,
+        footprint,
+        args.views
+    );
+    md.push_str("| signed distance (fp) | Gaussians | share | opacity p10 / p50 / p90 |");
+    for t in &term_names {
+        md.push_str(&format!(" {t} logit / normal |"));
+    }
+    md.push('\n');
+    md.push_str("|---|---:|---:|---|");
+    for _ in &term_names {
+        md.push_str("---|");
+    }
+    md.push('\n');
+    for b in 0..nb {
+        if counts[b] == 0 {
+            continue;
+        }
+        let o = &op_bins[b];
+        md.push_str(&format!(
+            "| {} | {} | {:.1} % | {:.3} / {:.3} / {:.3} |",
+            bin_label(b),
+            counts[b],
+            100.0 * counts[b] as f64 / n as f64,
+            percentile(o, 0.1),
+            percentile(o, 0.5),
+            percentile(o, 0.9)
+        ));
+        for s in &sums {
+            let c = counts[b] as f64;
+            md.push_str(&format!(
+                " {:+.2} / {:+.2} |",
+                1e6 * s[b].0 / c,
+                1e6 * s[b].1 / c
+            ));
+        }
+        md.push('\n');
+    }
+    // Opacity-weighted: where the opacity is.
+    let total_op: f64 = opacity.iter().map(|o| *o as f64).sum();
+    md.push_str("\nOpacity mass per bin (sum of opacities, share): ");
+    let parts: Vec<String> = (0..nb)
+        .filter(|b| counts[*b] > 0)
+        .map(|b| {
+            let m: f64 = op_bins[b].iter().map(|o| *o as f64).sum();
+            format!("{} {:.1} %", bin_label(b), 100.0 * m / total_op.max(1e-12))
+        })
+        .collect();
+    md.push_str(&parts.join(", "));
+    md.push('\n');
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| args.run.join("diagnosis.md"));
+    gtsr_data::image_io::write_atomic(&out, md.as_bytes())
+        .with_context(|| format!("writing {}", out.display()))?;
+    println!("{md}");
+    println!("written to {}", out.display());
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bins_cover_the_line_in_order() {
+        assert_eq!(bin_of(-10.0), 0);
+        assert_eq!(bin_of(-4.0), 1);
+        assert_eq!(bin_of(-0.3), 4);
+        assert_eq!(bin_of(0.0), 5);
+        assert_eq!(bin_of(0.25), 6);
+        assert_eq!(bin_of(5.0), EDGES.len());
+        assert_eq!(bin_label(0), "< -4");
+        assert_eq!(bin_label(5), "[-0.25, 0.25)");
+        assert_eq!(bin_label(EDGES.len()), ">= 2");
+        let sorted = [0.1, 0.2, 0.3, 0.4, 0.5];
+        assert_eq!(percentile(&sorted, 0.5), 0.3);
+        assert!(percentile(&[], 0.5).is_nan());
+    }
+}
