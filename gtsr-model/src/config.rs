@@ -318,6 +318,8 @@ pub struct LearningRates {
     /// Position rate at step 0, times the scene extent.
     pub position_start: f64,
     /// Position rate at the last step, times the scene extent (exponential decay between).
+    /// A tenth of the start rather than 3DGS's hundredth, so that stage 2's geometric terms
+    /// can still move the surface out to where the depth says it is.
     pub position_end: f64,
     /// SH DC coefficients.
     pub sh_dc: f64,
@@ -341,7 +343,7 @@ impl Default for LearningRates {
     fn default() -> Self {
         LearningRates {
             position_start: 1.6e-4,
-            position_end: 1.6e-6,
+            position_end: 1.6e-5,
             sh_dc: 2.5e-3,
             sh_rest: 2.5e-3 / 20.0,
             opacity: 0.05,
