@@ -119,19 +119,29 @@ pub fn silhouette_distance(views: &[(Camera, &[f32])], p: Vec3) -> Option<f32> {
 /// survives marching cubes.
 pub const MASKS_VOXEL_FOOTPRINTS: f32 = 0.75;
 
+/// The box radius over this is the coarsest voxel of [`masks_mesh`], whatever the masks'
+/// resolution: small masks have large footprints, and thin parts need the grid.
+pub const MASKS_VOXEL_RADIUS_DIVISOR: f32 = 128.0;
+
+/// The grid spacing of [`masks_mesh`] for the box `[lo, hi]`: [`MASKS_VOXEL_FOOTPRINTS`] of
+/// the masks' median pixel footprint at its centre, at most the box radius over
+/// [`MASKS_VOXEL_RADIUS_DIVISOR`].
+pub fn masks_voxel(views: &[(Camera, &[f32])], lo: Vec3, hi: Vec3) -> f32 {
+    let footprint =
+        crate::tsdf::median_pixel_footprint(views.iter().map(|(c, _)| c), 0.5 * (lo + hi));
+    let radius = 0.5 * (hi - lo).max_element();
+    (MASKS_VOXEL_FOOTPRINTS * footprint).min(radius / MASKS_VOXEL_RADIUS_DIVISOR)
+}
+
 /// The masks alone, done well: the surface where the bilinearly interpolated masks cross 0.5
-/// ([`silhouette_distance`]), extracted by marching cubes in the box of [`hull_box`] at a
-/// voxel of [`MASKS_VOXEL_FOOTPRINTS`] median pixel footprints (`voxel` overrides it), the
-/// largest component. Pass the masks at the dataset's own resolution: the training size
+/// ([`silhouette_distance`]), extracted by marching cubes in the box of [`hull_box`] at
+/// [`masks_voxel`] (`voxel` overrides it), the largest component. Pass the masks at the dataset's own resolution: the training size
 /// throws away the sub-pixel edge. `None` when the masks are empty. Errors as [`hull_grid`].
 pub fn masks_mesh(views: &[(Camera, &[f32])], voxel: Option<f32>) -> Result<Option<TriMesh>> {
     let Some((lo, hi)) = hull_box(views)? else {
         return Ok(None);
     };
-    let voxel = voxel.unwrap_or_else(|| {
-        MASKS_VOXEL_FOOTPRINTS
-            * crate::tsdf::median_pixel_footprint(views.iter().map(|(c, _)| c), 0.5 * (lo + hi))
-    });
+    let voxel = voxel.unwrap_or_else(|| masks_voxel(views, lo, hi));
     let grid = masks_grid(views, lo, hi, voxel)?;
     let mesh = crate::mesh::largest_component(&marching_cubes(&grid, 0.0));
     Ok((!mesh.triangles.is_empty()).then_some(mesh))

@@ -52,8 +52,7 @@ impl NativeMasks {
         let Some((lo, hi)) = gtsr_eval::hull::hull_box(&borrowed)? else {
             return Ok(None);
         };
-        let voxel = gtsr_eval::hull::MASKS_VOXEL_FOOTPRINTS
-            * median_pixel_footprint(views.iter().map(|(c, _)| c), 0.5 * (lo + hi));
+        let voxel = gtsr_eval::hull::masks_voxel(&borrowed, lo, hi);
         let Some(mesh) = gtsr_eval::masks_mesh(&borrowed, Some(voxel))? else {
             return Ok(None);
         };

@@ -318,8 +318,7 @@ fn carve_rows(
         .filter_map(|v| v.mask.as_deref().map(|m| (v.camera, m)))
         .collect();
     let (lo, hi) = gtsr_eval::hull::hull_box(&masks)?.context("empty masks")?;
-    let voxel = gtsr_eval::hull::MASKS_VOXEL_FOOTPRINTS
-        * median_pixel_footprint(masks.iter().map(|(c, _)| c), 0.5 * (lo + hi));
+    let voxel = gtsr_eval::hull::masks_voxel(&masks, lo, hi);
     let t0 = Instant::now();
     let hull = gtsr_eval::masks_mesh(&masks, Some(voxel))?.context("empty masks")?;
     let mut rows = Vec::new();
