@@ -5,7 +5,6 @@
 //! `i + 0.5`) has the ray `r = ((u - cx) / fx, (v - cy) / fy, 1)` so a point at z-depth `Z`
 //! along it is `Z r`. Normals face the camera (`n . r < 0`), plane distances are positive.
 
-use burn::tensor::ops::PadMode;
 use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
 
 use gtsr_render_kernels::Camera;
@@ -23,21 +22,53 @@ pub fn quat_to_matrix(q: &Tensor<2>) -> Tensor<3> {
         .clamp_min(1e-24)
         .sqrt();
     let q = q.clone() / norm;
-    let c = |j: usize| q.clone().slice([0..n, j..j + 1]);
-    let (w, x, y, z) = (c(0), c(1), c(2), c(3));
-    let two = 2.0;
-    let m = [
-        -(y.clone() * y.clone() + z.clone() * z.clone()) * two + 1.0,
-        (x.clone() * y.clone() - w.clone() * z.clone()) * two,
-        (x.clone() * z.clone() + w.clone() * y.clone()) * two,
-        (x.clone() * y.clone() + w.clone() * z.clone()) * two,
-        -(x.clone() * x.clone() + z.clone() * z.clone()) * two + 1.0,
-        (y.clone() * z.clone() - w.clone() * x.clone()) * two,
-        (x.clone() * z.clone() - w.clone() * y.clone()) * two,
-        (y.clone() * z.clone() + w.clone() * x.clone()) * two,
-        -(x.clone() * x + y.clone() * y) * two + 1.0,
-    ];
-    Tensor::cat(m.to_vec(), 1).reshape([n, 3, 3])
+    // Every entry is a quadratic form of the unit quaternion, so the nine entries are the
+    // sixteen products q_a q_b times a constant [16, 9] matrix (one pass, contiguous).
+    let outer = (q.clone().reshape([n, 4, 1]) * q.reshape([n, 1, 4])).reshape([n, 16]);
+    let coeffs = rotation_from_products(&outer);
+    outer.matmul(coeffs).reshape([n, 3, 3])
+}
+
+/// `[16, 9]`: row `4a + b` holds the coefficient of `q_a q_b` (`q = (w, x, y, z)`, unit) in
+/// each entry of the row-major rotation matrix, split evenly between `q_a q_b` and `q_b q_a`.
+fn rotation_from_products(like: &Tensor<2>) -> Tensor<2> {
+    const W: usize = 0;
+    const X: usize = 1;
+    const Y: usize = 2;
+    const Z: usize = 3;
+    let mut m = [[0f32; 9]; 16];
+    let mut add = |entry: usize, a: usize, b: usize, coeff: f32| {
+        if a == b {
+            m[4 * a + b][entry] += coeff;
+        } else {
+            m[4 * a + b][entry] += coeff / 2.0;
+            m[4 * b + a][entry] += coeff / 2.0;
+        }
+    };
+    // 1 - 2 (y^2 + z^2) = w^2 + x^2 - y^2 - z^2 on the unit sphere, and so on.
+    for (entry, signs) in [
+        (0, [1.0, 1.0, -1.0, -1.0]),
+        (4, [1.0, -1.0, 1.0, -1.0]),
+        (8, [1.0, -1.0, -1.0, 1.0]),
+    ] {
+        for (k, s) in signs.into_iter().enumerate() {
+            add(entry, k, k, s);
+        }
+    }
+    add(1, X, Y, 2.0);
+    add(1, W, Z, -2.0);
+    add(2, X, Z, 2.0);
+    add(2, W, Y, 2.0);
+    add(3, X, Y, 2.0);
+    add(3, W, Z, 2.0);
+    add(5, Y, Z, 2.0);
+    add(5, W, X, -2.0);
+    add(6, X, Z, 2.0);
+    add(6, W, Y, -2.0);
+    add(7, Y, Z, 2.0);
+    add(7, W, X, 2.0);
+    let v: Vec<f32> = m.iter().flatten().copied().collect();
+    Tensor::<2>::from_data(TensorData::new(v, [16, 9]), &like.device()).cast(like.dtype())
 }
 
 /// A camera's rotation (world to camera, rows) and translation as tensors: `([3, 3], [1, 3])`.
@@ -149,39 +180,58 @@ pub fn normals_from_depth(
     valid: &Tensor<2, Bool>,
 ) -> (Tensor<3>, Tensor<2>) {
     let [h, w] = depth.dims();
-    let p = rays.clone() * depth.clone().reshape([h, w, 1]);
-    let dx = p.clone().slice([1..h - 1, 2..w, 0..3]) - p.clone().slice([1..h - 1, 0..w - 2, 0..3]);
-    let dy = p.clone().slice([2..h, 1..w - 1, 0..3]) - p.slice([0..h - 2, 1..w - 1, 0..3]);
-    let n = cross(&dx, &dy).neg();
-    let len = n
-        .clone()
-        .powf_scalar(2.0)
-        .sum_dim(2)
-        .clamp_min(1e-20)
-        .sqrt();
-    let n = n / len;
-    let n = n.pad([(1, 1), (1, 1), (0, 0)], PadMode::Constant(0.0));
-    let vf = valid.clone().float().cast(depth.dtype());
-    let inner = vf.clone().slice([1..h - 1, 1..w - 1])
-        * vf.clone().slice([1..h - 1, 2..w])
-        * vf.clone().slice([1..h - 1, 0..w - 2])
-        * vf.clone().slice([2..h, 1..w - 1])
-        * vf.slice([0..h - 2, 1..w - 1]);
-    (n, inner.pad([(1, 1), (1, 1)], PadMode::Constant(0.0)))
+    let m = h * w;
+    let dtype = depth.dtype();
+    let device = depth.device();
+    // Pixels in row-major order: the x neighbours of pixel j are j -+ 1, the y neighbours
+    // j -+ w. Differences over whole rows of that list are contiguous; pixels j in [w, m - w)
+    // (every row but the first and last) get them, and the first and last columns, whose x
+    // neighbours wrap to the next row, are zeroed by `border`.
+    let p = (rays.clone() * depth.clone().reshape([h, w, 1])).reshape([m, 3]);
+    let mid = m - 2 * w;
+    let dx = p.clone().slice([w + 1..m - w + 1]) - p.clone().slice([w - 1..m - w - 1]);
+    let dy = p.clone().slice([2 * w..m]) - p.slice([0..mid]);
+    let n = cross_rows(&dx, &dy).neg();
+    let len = (n.clone() * n.clone()).sum_dim(1).clamp_min(1e-20).sqrt();
+    let mut border = vec![1f32; mid];
+    for (j, b) in border.iter_mut().enumerate() {
+        let x = j % w;
+        if x == 0 || x == w - 1 {
+            *b = 0.0;
+        }
+    }
+    let border = Tensor::<1>::from_data(TensorData::new(border, [mid]), &device).cast(dtype);
+    let n = n / len * border.clone().reshape([mid, 1]);
+    let pad_rows = |t: Tensor<2>| {
+        let c = t.dims()[1];
+        let zeros = Tensor::<2>::zeros([w, c], (&device, dtype));
+        Tensor::cat(vec![zeros.clone(), t, zeros], 0)
+    };
+    let n = pad_rows(n).reshape([h, w, 3]);
+    let vf = valid.clone().float().cast(dtype).reshape([m]);
+    let inner = vf.clone().slice([w..m - w])
+        * vf.clone().slice([w + 1..m - w + 1])
+        * vf.clone().slice([w - 1..m - w - 1])
+        * vf.clone().slice([2 * w..m])
+        * vf.slice([0..mid])
+        * border;
+    (n, pad_rows(inner.reshape([mid, 1])).reshape([h, w]))
+}
+
+/// Row-wise cross product of `[M, 3]` tensors.
+pub fn cross_rows(a: &Tensor<2>, b: &Tensor<2>) -> Tensor<2> {
+    // a x b = a_yzx * b_zxy - a_zxy * b_yzx, with the rotated copies as products with
+    // permutation matrices (contiguous; see `crate::layout`).
+    let yzx = |t: &Tensor<2>| crate::layout::pick_cols(t, &[1, 2, 0]);
+    let zxy = |t: &Tensor<2>| crate::layout::pick_cols(t, &[2, 0, 1]);
+    yzx(a) * zxy(b) - zxy(a) * yzx(b)
 }
 
 /// Row-wise cross product of `[.., .., 3]` tensors.
 pub fn cross(a: &Tensor<3>, b: &Tensor<3>) -> Tensor<3> {
     let [h, w, _] = a.dims();
-    let c = |t: &Tensor<3>, k: usize| t.clone().slice([0..h, 0..w, k..k + 1]);
-    Tensor::cat(
-        vec![
-            c(a, 1) * c(b, 2) - c(a, 2) * c(b, 1),
-            c(a, 2) * c(b, 0) - c(a, 0) * c(b, 2),
-            c(a, 0) * c(b, 1) - c(a, 1) * c(b, 0),
-        ],
-        2,
-    )
+    let flat = |t: &Tensor<3>| t.clone().reshape([h * w, 3]);
+    cross_rows(&flat(a), &flat(b)).reshape([h, w, 3])
 }
 
 /// Integer pixel indices `[M]` (row-major) of continuous positions, clamped to the image.

@@ -21,6 +21,7 @@ use crate::gaussians::{GaussianSet, ParamKind, host_vec, logistic};
 use crate::geometry::{
     dir_to_camera, facing_normals, quat_to_matrix, to_camera, unbiased_depth, view_dirs,
 };
+use crate::layout;
 use crate::pbr::{self, GBuffer, ShadingParams};
 use crate::sh;
 
@@ -165,9 +166,8 @@ fn depth_maps(
     rays: &Tensor<3>,
     tile_splats: u64,
 ) -> GeometryMaps {
-    let [h, w, _] = rays.dims();
-    let normal = maps.clone().slice([0..h, 0..w, 0..3]);
-    let plane = maps.slice([0..h, 0..w, 3..4]).reshape([h, w]);
+    let normal = layout::channels(&maps, 0..3);
+    let plane = layout::channel(&maps, 3);
     let depth = unbiased_depth(&normal, &plane, rays);
     GeometryMaps {
         normal,
@@ -289,7 +289,7 @@ impl Model {
             f.push(logistic(self.surface.req(ParamKind::Roughness).clone()));
         }
         f.extend(spread_feats);
-        let out = Tensor::cat(f, 1);
+        let out = layout::cat_cols(f);
         debug_assert_eq!(out.dims()[0], n);
         out
     }
@@ -314,7 +314,6 @@ impl Model {
         let need_normals = opts.geometry || fresnel;
         let surf = self.prepare(&self.surface, camera, need_normals, opts.track_offsets);
         let ns = self.surface.len();
-        let [h, w, _] = rays.dims();
         let mut passes = 0;
         let mut tile_splats = 0;
         let mut geometry_out: Option<(Tensor<3>, Tensor<2>, u64)> = None;
@@ -329,7 +328,7 @@ impl Model {
             let out = splat(
                 &surf,
                 surf.opacities.clone(),
-                Tensor::cat(feats, 1),
+                layout::cat_cols(feats),
                 camera,
                 self.blur_px2,
             )?;
@@ -337,10 +336,10 @@ impl Model {
             let (radii, tiles) = radii_and_tiles(out.aux);
             tile_splats += tiles;
             let ch = out.image.dims()[2];
-            let c_sh = out.image.clone().slice([0..h, 0..w, 0..3]);
+            let c_sh = layout::channels(&out.image, 0..3);
             if opts.geometry {
                 geometry_out = Some((
-                    out.image.slice([0..h, 0..w, 3..ch]),
+                    layout::channels(&out.image, 3..ch),
                     out.alpha.clone(),
                     tiles,
                 ));
@@ -396,13 +395,13 @@ impl Model {
         let geometry = geometry_out.map(|(maps, coverage, tiles)| {
             let ch = maps.dims()[2];
             let spread = opts.spread.then(|| {
-                let moments = maps.clone().slice([0..h, 0..w, ch - SPREAD_CHANNELS..ch]);
+                let moments = layout::channels(&maps, ch - SPREAD_CHANNELS..ch);
                 plane_spread(moments, &coverage, rays)
             });
             let (base, roughness) = if material {
                 (
-                    Some(maps.clone().slice([0..h, 0..w, 4..7])),
-                    Some(maps.clone().slice([0..h, 0..w, 7..8]).reshape([h, w])),
+                    Some(layout::channels(&maps, 4..7)),
+                    Some(layout::channel(&maps, 7)),
                 )
             } else {
                 (None, None)
@@ -526,38 +525,28 @@ fn spread_features(n_c: &Tensor<2>, plane: &Tensor<2>, camera: &Camera) -> Tenso
         .sum::<f64>()
         .sqrt()
         .max(1e-6);
-    let [n, _] = n_c.dims();
     let m = n_c.clone() / plane.clone().clamp_min(SPREAD_MIN_PLANE * c);
-    let col = |k: usize| m.clone().slice([0..n, k..k + 1]);
+    let col = |k: usize| layout::cols(&m, k..k + 1);
     let (x, y, z) = (col(0), col(1), col(2) + 1.0 / c);
-    Tensor::cat(
-        vec![
-            x.clone(),
-            y.clone(),
-            z.clone(),
-            x.clone().powi_scalar(2),
-            y.clone().powi_scalar(2),
-            z.clone().powi_scalar(2),
-            x.clone() * y.clone(),
-            x * z.clone(),
-            y * z,
-        ],
-        1,
-    )
+    layout::cat_cols(vec![
+        x.clone(),
+        y.clone(),
+        z.clone(),
+        x.clone().powi_scalar(2),
+        y.clone().powi_scalar(2),
+        z.clone().powi_scalar(2),
+        x.clone() * y.clone(),
+        x * z.clone(),
+        y * z,
+    ])
 }
 
 /// [`GeometryMaps::spread`] from the blended moments of [`spread_features`] `[H, W, 9]`
 /// (premultiplied), the coverage and the pixel rays.
 fn plane_spread(moments: Tensor<3>, coverage: &Tensor<2>, rays: &Tensor<3>) -> Tensor<2> {
-    let [h, w, _] = moments.dims();
-    let ch = |k: usize| {
-        moments
-            .clone()
-            .slice([0..h, 0..w, k..k + 1])
-            .reshape([h, w])
-    };
-    let rx = rays.clone().slice([0..h, 0..w, 0..1]).reshape([h, w]);
-    let ry = rays.clone().slice([0..h, 0..w, 1..2]).reshape([h, w]);
+    let ch = |k: usize| layout::channel(&moments, k);
+    let rx = layout::channel(rays, 0);
+    let ry = layout::channel(rays, 1);
     let cover = coverage.clone().clamp_min(crate::pbr::COVER_MIN);
     // E[m . r] and E[(m . r)^2] with r = (rx, ry, 1).
     let mean = (ch(0) * rx.clone() + ch(1) * ry.clone() + ch(2)) / cover.clone();

@@ -36,8 +36,7 @@ pub fn basis_rest(dirs: &Tensor<2>, degree: u32) -> Option<Tensor<2>> {
     if degree == 0 {
         return None;
     }
-    let n = dirs.dims()[0];
-    let col = |j: usize| dirs.clone().slice([0..n, j..j + 1]);
+    let col = |j: usize| crate::layout::cols(dirs, j..j + 1);
     let (x, y, z) = (col(0), col(1), col(2));
     let mut b = vec![y.clone() * (-C1), z.clone() * C1, x.clone() * (-C1)];
     if degree >= 2 {

@@ -10,8 +10,10 @@
 //! and the step number, so a resumed run repeats an uninterrupted one exactly.
 
 use std::collections::HashMap;
+use std::time::{Duration, Instant};
 
 use burn::tensor::{Bool, Device, Tensor};
+use gtsr_render_kernels::cpu::{KernelTimes, kernel_times};
 use rand::{RngExt, SeedableRng, rngs::StdRng};
 use serde::{Deserialize, Serialize};
 
@@ -63,6 +65,61 @@ pub struct StepReport {
     pub densified: Option<(DensifyReport, DensifyReport)>,
     /// Set sizes after the step.
     pub counts: (usize, usize),
+    /// Where the step's wall time went.
+    pub times: StepTimes,
+}
+
+/// Wall time of one step by phase. `forward` and `backward` include the splatting kernels,
+/// whose own phases (CPU backend) are in `kernels`; the rest of them is Burn's tensor work
+/// (SH, Fresnel, C_PBR, losses and their autodiff).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StepTimes {
+    /// Renders and losses (the graph's forward pass), including the loss read-backs.
+    pub forward: Duration,
+    /// `backward()` on the total loss.
+    pub backward: Duration,
+    /// Gradient read-out, the finiteness check and the densification statistics.
+    pub gradients: Duration,
+    /// The Adam updates.
+    pub adam: Duration,
+    /// Densification and pruning (on its schedule).
+    pub densify: Duration,
+    /// The CPU splatting kernels' phases within `forward` and `backward`.
+    pub kernels: KernelTimes,
+    /// `forward` by part: the renders, then each loss term (named as in
+    /// [`StepReport::terms`]; `multi_view` includes the neighbour's render).
+    pub forward_parts: Vec<(&'static str, Duration)>,
+}
+
+impl StepTimes {
+    /// The whole step.
+    pub fn total(&self) -> Duration {
+        self.forward + self.backward + self.gradients + self.adam + self.densify
+    }
+
+    /// Adds `other` phase by phase.
+    pub fn add(&mut self, other: &StepTimes) {
+        self.forward += other.forward;
+        self.backward += other.backward;
+        self.gradients += other.gradients;
+        self.adam += other.adam;
+        self.densify += other.densify;
+        let (k, o) = (&mut self.kernels, &other.kernels);
+        k.project += o.project;
+        k.sort_bin += o.sort_bin;
+        k.blend_forward += o.blend_forward;
+        k.blend_backward += o.blend_backward;
+        k.gather += o.gather;
+        k.host_copies += o.host_copies;
+        k.forward_calls += o.forward_calls;
+        k.backward_calls += o.backward_calls;
+        for (name, d) in &other.forward_parts {
+            match self.forward_parts.iter_mut().find(|(n, _)| n == name) {
+                Some(slot) => slot.1 += *d,
+                None => self.forward_parts.push((name, *d)),
+            }
+        }
+    }
 }
 
 /// The loss of one step before its backward pass.
@@ -77,6 +134,9 @@ pub struct Forward {
     pub passes: usize,
     /// Tile-splat pairs of those passes.
     pub tile_splats: u64,
+    /// Wall time of each part of the forward pass (the renders, then each term's
+    /// computation), in order.
+    pub term_times: Vec<(&'static str, Duration)>,
     /// Training view index.
     pub view: usize,
     /// Whether the step is in stage 2.
@@ -458,7 +518,15 @@ impl Trainer {
             spread: cfg.weights.spread > 0.0,
             ..self.render_options(step, true)
         };
+        let mut clock = Instant::now();
+        let mut term_times: Vec<(&'static str, Duration)> = Vec::new();
         let r = self.model.render(&view.camera, &view.rays, opts)?;
+        let mut lap = |name: &'static str| {
+            let now = Instant::now();
+            term_times.push((name, now - clock));
+            clock = now;
+        };
+        lap("renders");
         let mut passes = r.passes;
         let mut tile_splats = r.tile_splats;
         let mut terms: Vec<(&'static str, Tensor<1>)> = Vec::new();
@@ -467,11 +535,13 @@ impl Trainer {
             "c_sh",
             losses::photometric(r.c_sh.clone(), view.rgb.clone(), w.lambda_l1),
         ));
+        lap(terms.last().expect("pushed").0);
         if let Some(pbr) = &r.c_pbr {
             terms.push((
                 "c_pbr",
                 losses::photometric(pbr.clone(), view.rgb.clone(), w.lambda_l1),
             ));
+            lap(terms.last().expect("pushed").0);
         }
         let coverage = r
             .geometry
@@ -484,6 +554,7 @@ impl Trainer {
                 losses::mask_l1(&coverage, mask)
             };
             terms.push(("mask", term * w.mask));
+            lap(terms.last().expect("pushed").0);
         }
         if stage2 && w.opacity_entropy > 0.0 {
             terms.push((
@@ -491,12 +562,14 @@ impl Trainer {
                 losses::opacity_entropy(self.model.surface.req(ParamKind::Opacity))
                     * w.opacity_entropy,
             ));
+            lap(terms.last().expect("pushed").0);
         }
         if w.flatten > 0.0 {
             terms.push((
                 "flatten",
                 losses::flatten(&self.model.surface.scales()) * w.flatten,
             ));
+            lap(terms.last().expect("pushed").0);
         }
         if let Some(g) = &r.geometry {
             let valid = valid_pixels(&g.coverage, view.mask.as_ref());
@@ -507,6 +580,7 @@ impl Trainer {
                     losses::single_view(&g.depth, &g.normal, &view.rays, &valid, &view.edge_weight)
                         * l2,
                 ));
+                lap(terms.last().expect("pushed").0);
             }
             if c.multi_view && !self.neighbours[vi].is_empty() {
                 let mut rng = step_rng(cfg.seed, step, RNG_NEIGHBOUR);
@@ -528,12 +602,14 @@ impl Trainer {
                     cfg.multi_view_max_error_px,
                 );
                 terms.push(("multi_view", mv.loss * w.multi_view));
+                lap(terms.last().expect("pushed").0);
             }
             if let Some(spread) = &g.spread {
                 terms.push((
                     "spread",
                     losses::layer_spread(spread, &g.depth, view.camera.fx, &valid) * w.spread,
                 ));
+                lap(terms.last().expect("pushed").0);
             }
             if let (Some(int), true) = (&self.model.interior, w.interior > 0.0) {
                 terms.push((
@@ -545,6 +621,7 @@ impl Trainer {
                         &valid,
                     ) * w.interior,
                 ));
+                lap(terms.last().expect("pushed").0);
             }
             if c.smoothness {
                 if let Some(b) = &g.base {
@@ -553,6 +630,7 @@ impl Trainer {
                         losses::edge_aware_smoothness(b, &view.smooth_wx, &view.smooth_wy)
                             * w.smooth_base,
                     ));
+                    lap(terms.last().expect("pushed").0);
                 }
                 if let Some(rough) = &g.roughness {
                     let [h, wd] = rough.dims();
@@ -564,6 +642,7 @@ impl Trainer {
                             &view.smooth_wy,
                         ) * w.smooth_roughness,
                     ));
+                    lap(terms.last().expect("pushed").0);
                 }
             }
         }
@@ -572,9 +651,11 @@ impl Trainer {
             .map(|(_, t)| t.clone())
             .reduce(|a, b| a + b)
             .expect("at least the photometric term");
+        lap("sum");
         Ok(Forward {
             total,
             terms,
+            term_times,
             renders: r,
             passes,
             tile_splats,
@@ -611,6 +692,8 @@ impl Trainer {
     pub fn step(&mut self) -> Result<StepReport, ModelError> {
         let step = self.step;
         let cfg = self.config.clone();
+        let kernels0 = kernel_times();
+        let t0 = Instant::now();
         let Forward {
             total,
             terms,
@@ -619,6 +702,7 @@ impl Trainer {
             tile_splats,
             view: vi,
             stage2,
+            term_times,
         } = self.forward(step)?;
         let view = self.views[vi].clone();
         let loss = total.clone().into_scalar::<f64>();
@@ -628,7 +712,15 @@ impl Trainer {
             .collect();
         self.counters.passes += passes;
         self.counters.tile_splats += tile_splats;
+        let mut times = StepTimes {
+            forward: t0.elapsed(),
+            forward_parts: term_times,
+            ..StepTimes::default()
+        };
+        let t0 = Instant::now();
         let grads = total.backward();
+        times.backward = t0.elapsed();
+        let t0 = Instant::now();
         let collect = |set: &GaussianSet| -> HashMap<ParamKind, Tensor<2>> {
             set.params
                 .iter()
@@ -659,10 +751,13 @@ impl Trainer {
             skipped: !all_finite,
             densified: None,
             counts: self.model.counts(),
+            times,
         };
         if !all_finite {
             self.counters.skipped_steps += 1;
             self.step += 1;
+            report.times.gradients = t0.elapsed();
+            report.times.kernels = kernel_times().since(&kernels0);
             return Ok(report);
         }
         // Densification statistics.
@@ -683,7 +778,9 @@ impl Trainer {
                 stats.add(&host_vec(g), radii, w, h);
             }
         }
+        report.times.gradients = t0.elapsed();
         // Adam.
+        let t0 = Instant::now();
         let rates: HashMap<ParamKind, f64> = ParamKind::ALL
             .iter()
             .map(|k| (*k, self.lr_for(step, *k)))
@@ -705,7 +802,11 @@ impl Trainer {
             let out = self.opt_light.step(set, &grads, &|_| light_lr);
             self.model.log_light = out.params.into_iter().next().map(|(_, t)| t);
         }
+        report.times.adam = t0.elapsed();
+        let t0 = Instant::now();
         report.densified = self.maybe_densify(step);
+        report.times.densify = t0.elapsed();
+        report.times.kernels = kernel_times().since(&kernels0);
         report.counts = self.model.counts();
         self.step += 1;
         Ok(report)

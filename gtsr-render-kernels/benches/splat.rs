@@ -8,7 +8,8 @@
 //!
 //! Each configuration runs in its own process so that its peak resident memory (VmHWM) is its
 //! own. Prints a markdown table. `GTSR_BENCH_FILTER=256x256` (a substring of the config name)
-//! runs a subset.
+//! runs a subset. `GTSR_BLEND=per-pixel|scalar|avx2|avx512` runs the f32 blend on another
+//! implementation (`cpu::BlendPath`).
 
 // Device::ndarray is deprecated upstream; the design card keeps NdArray as the CI backend.
 #![allow(deprecated)]
@@ -111,7 +112,7 @@ fn single(size: u32, count: usize) {
         let _ = out.image.into_data();
     });
     let ad = bench_device().autodiff();
-    let (step_ms, step_n) = time_it(|| {
+    let step = || {
         let inp = scene.inputs(&ad, DType::F32);
         let inp = gtsr_render_kernels::SplatInputs {
             means: inp.means.require_grad(),
@@ -126,7 +127,25 @@ fn single(size: u32, count: usize) {
         let loss = out.image.sum() + out.alpha.sum();
         let grads = loss.backward();
         let _ = keep.grad(&grads).unwrap().into_data();
-    });
+    };
+    let (step_ms, step_n) = time_it(step);
+    // Where one forward+backward call's time goes (CPU kernels only).
+    let k0 = cpu::kernel_times();
+    let t = Instant::now();
+    step();
+    let wall = t.elapsed();
+    let k = cpu::kernel_times().since(&k0);
+    let ms = |d: Duration| d.as_secs_f64() * 1e3;
+    println!(
+        "PHASES {size} {count} {:.1} {:.1} {:.1} {:.1} {:.1} {:.1} {:.1}",
+        ms(k.project),
+        ms(k.sort_bin),
+        ms(k.blend_forward),
+        ms(k.blend_backward),
+        ms(k.gather),
+        ms(k.host_copies),
+        ms(wall.saturating_sub(k.total()))
+    );
     println!(
         "RESULT {size} {count} {fwd_ms:.2} {fwd_n} {step_ms:.2} {step_n} {evals} {isects} {:.1}",
         peak_rss_mb()
@@ -150,14 +169,17 @@ fn main() {
         );
     } else {
         println!(
-            "NdArray backend, f32, {} rayon threads. Median wall time per call.\n",
-            rayon::current_num_threads()
+            "NdArray backend, f32, {} rayon threads, blend {:?} (`GTSR_BLEND` picks another). \
+             Median wall time per call.\n",
+            rayon::current_num_threads(),
+            cpu::BlendPath::default_path()
         );
     }
     println!(
         "| image | Gaussians | forward ms | fwd+bwd ms | splat-pixel evals (fwd) | fwd Meval/s | tile intersections | peak RSS MB |"
     );
     println!("|---|---|---|---|---|---|---|---|");
+    let mut phases = Vec::new();
     for (size, count) in CONFIGS {
         // The 800x800 rows are the GPU targets of the wgpu issue; on NdArray they only repeat
         // what the 512x512 rows show, at several seconds per call.
@@ -177,6 +199,12 @@ fn main() {
             eprintln!("{name}: failed\n{}", String::from_utf8_lossy(&out.stderr));
             continue;
         };
+        if let Some(p) = text.lines().find(|l| l.starts_with("PHASES")) {
+            phases.push(format!(
+                "| {size}x{size} | {count} | {} |",
+                p.split_whitespace().skip(3).collect::<Vec<_>>().join(" | ")
+            ));
+        }
         let v: Vec<&str> = line.split_whitespace().collect();
         let fwd: f64 = v[3].parse().unwrap();
         let evals: f64 = v[7].parse().unwrap();
@@ -191,6 +219,19 @@ fn main() {
             v[8],
             v[9]
         );
+    }
+    if !phases.is_empty() {
+        println!(
+            "\nOne forward+backward call by phase, ms (CPU kernels; `rest` is Burn's autodiff \
+             and tensor work around them):\n"
+        );
+        println!(
+            "| image | Gaussians | projection | sort + binning | blend fwd | blend bwd | gather + projection bwd | host copies | rest |"
+        );
+        println!("|---|---|---|---|---|---|---|---|---|");
+        for p in phases {
+            println!("{p}");
+        }
     }
 }
 

@@ -190,10 +190,13 @@ fn nd_forward<F: Real + burn::tensor::Element>(
     p: &SplatPrimitives<NdArray>,
     config: &SplatConfig,
 ) -> (NdArrayTensor, NdArrayTensor, Arc<NdArraySplatSaved<F>>) {
+    let start = std::time::Instant::now();
     let inputs = host_inputs::<F>(p);
+    cpu::lap(cpu::Phase::HostCopies, start);
     let n = inputs.opacities.len();
     let c = config.background.len();
     let out = cpu::forward(&inputs.view(), config);
+    let start = std::time::Instant::now();
     let image_shape = [
         config.camera.height as usize,
         config.camera.width as usize,
@@ -207,6 +210,7 @@ fn nd_forward<F: Real + burn::tensor::Element>(
         forward: out.state,
         image_shape,
     });
+    cpu::lap(cpu::Phase::HostCopies, start);
     (image, aux, saved)
 }
 
@@ -214,7 +218,9 @@ fn nd_backward<F: Real + burn::tensor::Element>(
     saved: &NdArraySplatSaved<F>,
     grad: &NdArrayTensor,
 ) -> [NdArrayTensor; 6] {
+    let start = std::time::Instant::now();
     let grad: Vec<F> = read_host(grad);
+    cpu::lap(cpu::Phase::HostCopies, start);
     assert_eq!(
         grad.len(),
         saved.image_shape.iter().product::<usize>(),
@@ -223,14 +229,17 @@ fn nd_backward<F: Real + burn::tensor::Element>(
     let n = saved.inputs.opacities.len();
     let c = saved.config.background.len();
     let g = cpu::backward(&saved.inputs.view(), &saved.config, &saved.forward, &grad);
-    [
+    let start = std::time::Instant::now();
+    let out = [
         to_nd(g.means, &[n, 3]),
         to_nd(g.quats, &[n, 4]),
         to_nd(g.scales, &[n, 3]),
         to_nd(g.opacities, &[n]),
         to_nd(g.features, &[n, c]),
         to_nd(g.xy_offsets, &[n, 2]),
-    ]
+    ];
+    cpu::lap(cpu::Phase::HostCopies, start);
+    out
 }
 
 impl SplatKernels for NdArray {

@@ -9,6 +9,8 @@ pub trait Real: num_traits::Float + Send + Sync + Debug + Default + 'static {
     fn c(v: f64) -> Self;
     /// Widens to `f64`.
     fn f64(self) -> f64;
+    /// The slice itself when `Self` is `f32` (routes f32 to the SIMD blend), else `None`.
+    fn slice_as_f32(s: &[Self]) -> Option<&[f32]>;
 }
 
 impl Real for f32 {
@@ -20,6 +22,10 @@ impl Real for f32 {
     fn f64(self) -> f64 {
         f64::from(self)
     }
+    #[inline(always)]
+    fn slice_as_f32(s: &[Self]) -> Option<&[f32]> {
+        Some(s)
+    }
 }
 
 impl Real for f64 {
@@ -30,5 +36,9 @@ impl Real for f64 {
     #[inline(always)]
     fn f64(self) -> f64 {
         self
+    }
+    #[inline(always)]
+    fn slice_as_f32(_: &[Self]) -> Option<&[f32]> {
+        None
     }
 }

@@ -158,6 +158,10 @@ pub struct Args {
     /// The consistency tolerance, in pixel footprints.
     #[arg(long, default_value_t = 1.0)]
     pub consistency_footprints: f32,
+    /// Time every step by phase (kernels, Burn ops, Adam, densification) and print the mean
+    /// per stage at the end (also written to `profile.md` in `--out`).
+    #[arg(long)]
+    pub profile: bool,
     /// Save a checkpoint every this many steps (0: only at the end or on Ctrl-C).
     #[arg(long, default_value_t = 500)]
     pub checkpoint_every: usize,

@@ -504,6 +504,11 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
     write_atomic(path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))
 }
 
+/// Writes `text` to `path`, atomically.
+pub fn write_text(path: &Path, text: &str) -> Result<()> {
+    write_atomic(path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))
+}
+
 /// `gaussians.ply`.
 pub fn write_splats(trainer: &Trainer, out: &Path) -> Result<usize> {
     let path = out.join("gaussians.ply");

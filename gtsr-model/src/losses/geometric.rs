@@ -6,6 +6,7 @@ use burn::tensor::{Bool, Int, Tensor, TensorData};
 use gtsr_render_kernels::Camera;
 
 use crate::geometry::{camera_tensors, normals_from_depth};
+use crate::layout;
 
 /// Single-view term: `sum_p w(p) |N_d(p) - N(p)|_1 / #valid`, with `N_d` the normal of the
 /// depth map, `N` the rendered normal (normalised) and `w` the edge weight of the ground truth.
@@ -58,11 +59,10 @@ fn pixel_grid(w: usize, h: usize, device: &burn::tensor::Device) -> (Tensor<1>, 
 }
 
 fn project(x: &Tensor<2>, cam: &Camera, near: f64) -> (Tensor<1>, Tensor<1>, Tensor<1>) {
-    let m = x.dims()[0];
-    let z = x.clone().slice([0..m, 2..3]).reshape([m]);
+    let z = layout::col(x, 2);
     let zc = z.clone().clamp_min(near);
-    let u = x.clone().slice([0..m, 0..1]).reshape([m]) / zc.clone() * cam.fx + cam.cx;
-    let v = x.clone().slice([0..m, 1..2]).reshape([m]) / zc * cam.fy + cam.cy;
+    let u = layout::col(x, 0) / zc.clone() * cam.fx + cam.cx;
+    let v = layout::col(x, 1) / zc * cam.fy + cam.cy;
     (u, v, z)
 }
 
@@ -143,14 +143,11 @@ pub fn multi_view(
         .map(|i| vflat.clone().gather(0, i.clone()))
         .reduce(|a, b| a * b)
         .expect("four corners");
-    let ray_n = Tensor::cat(
-        vec![
-            ((un.clone() - cam_n.cx) / cam_n.fx).reshape([m, 1]),
-            ((vn.clone() - cam_n.cy) / cam_n.fy).reshape([m, 1]),
-            Tensor::ones([m, 1], (&device, dtype)),
-        ],
-        1,
-    );
+    let ray_n = layout::cat_cols(vec![
+        ((un.clone() - cam_n.cx) / cam_n.fx).reshape([m, 1]),
+        ((vn.clone() - cam_n.cy) / cam_n.fy).reshape([m, 1]),
+        Tensor::ones([m, 1], (&device, dtype)),
+    ]);
     let xn2 = ray_n * dn.reshape([m, 1]);
     let xw2 = (xn2 - tn).matmul(rn);
     let xr2 = xw2.matmul(rr.transpose()) + tr;

@@ -6,8 +6,16 @@
 //! without Burn, and so that other backends can use them as a reference.
 
 mod bin;
+mod lanes;
 mod project;
 mod raster;
+mod timing;
+
+pub use lanes::{BlendPath, exp_lanes};
+pub use timing::{KernelTimes, kernel_times};
+pub(crate) use timing::{Phase, lap};
+
+use std::time::Instant;
 
 use rayon::prelude::*;
 
@@ -70,6 +78,7 @@ pub struct ForwardState<F> {
     raster: RasterState<F>,
     background: Vec<F>,
     channels: usize,
+    path: BlendPath,
 }
 
 /// Output of [`forward`].
@@ -105,9 +114,20 @@ pub struct HostGradients<F> {
     pub xy_offsets: Vec<F>,
 }
 
-/// Renders `g` with `cfg`. Shapes must be consistent (the Burn wrapper checks them).
+/// Renders `g` with `cfg`. Shapes must be consistent (the Burn wrapper checks them). f32 blends
+/// on [`BlendPath::default_path`].
 pub fn forward<F: Real>(g: &HostGaussians<'_, F>, cfg: &SplatConfig) -> ForwardOutput<F> {
-    forward_impl(g, cfg, None)
+    forward_impl(g, cfg, None, BlendPath::default_path())
+}
+
+/// [`forward`] on a chosen blend implementation (one this CPU can run, else the portable
+/// build of it). [`backward`] uses the same one.
+pub fn forward_with<F: Real>(
+    g: &HostGaussians<'_, F>,
+    cfg: &SplatConfig,
+    path: BlendPath,
+) -> ForwardOutput<F> {
+    forward_impl(g, cfg, None, path)
 }
 
 /// Output of [`crossing_features`].
@@ -138,7 +158,7 @@ pub fn crossing_features<F: Real>(
         threshold > 0.0 && threshold < 1.0,
         "crossing threshold must be in (0, 1), got {threshold}"
     );
-    let out = forward_impl(g, cfg, Some(F::c(threshold)));
+    let out = forward_impl(g, cfg, Some(F::c(threshold)), BlendPath::PerPixel);
     let c = out.state.channels;
     let bins = &out.state.bins;
     let cross = &out.state.raster.crossing;
@@ -174,7 +194,10 @@ fn forward_impl<F: Real>(
     g: &HostGaussians<'_, F>,
     cfg: &SplatConfig,
     crossing: Option<F>,
+    path: BlendPath,
 ) -> ForwardOutput<F> {
+    timing::count_call(false);
+    let start = Instant::now();
     let cam = CamF::<F>::new(cfg);
     let n = g.len();
     let c = cfg.background.len();
@@ -204,6 +227,7 @@ fn forward_impl<F: Real>(
         }
     }
     let splats: Vec<Option<Splat<F>>> = projected.into_iter().map(Result::ok).collect();
+    let start = lap(Phase::Project, start);
     let (tiles_x, tiles_y) = cfg.camera.tile_grid();
     let order = bin::depth_order(&splats);
     let sorted: Vec<Splat<F>> = order
@@ -229,7 +253,13 @@ fn forward_impl<F: Real>(
         cutoff: cfg.cutoff,
         crossing,
     };
-    let (image, raster, evaluations) = raster::rasterize(&bins, &ctx);
+    let start = lap(Phase::SortBin, start);
+    let (image, raster, evaluations) = if lanes::serves(&ctx, path) {
+        lanes::rasterize(&bins, &ctx, path)
+    } else {
+        raster::rasterize(&bins, &ctx)
+    };
+    lap(Phase::BlendForward, start);
     let intersections = bins.packed.len();
     ForwardOutput {
         image,
@@ -242,6 +272,7 @@ fn forward_impl<F: Real>(
             raster,
             background,
             channels: c,
+            path,
         },
     }
 }
@@ -253,6 +284,8 @@ pub fn backward<F: Real>(
     state: &ForwardState<F>,
     grad_image: &[F],
 ) -> HostGradients<F> {
+    timing::count_call(true);
+    let start = Instant::now();
     let cam = CamF::<F>::new(cfg);
     let n = g.len();
     let c = state.channels;
@@ -266,7 +299,12 @@ pub fn backward<F: Real>(
         cutoff: cfg.cutoff,
         crossing: None,
     };
-    let slots = raster::rasterize_backward(&state.bins, &ctx, &state.raster, grad_image);
+    let slots = if lanes::serves(&ctx, state.path) {
+        lanes::rasterize_backward(&state.bins, &ctx, &state.raster, grad_image, state.path)
+    } else {
+        raster::rasterize_backward(&state.bins, &ctx, &state.raster, grad_image)
+    };
+    let start = lap(Phase::BlendBackward, start);
     let slot = SLOT_FIXED + c;
     let bins = &state.bins;
 
@@ -334,5 +372,6 @@ pub fn backward<F: Real>(
             df.copy_from_slice(feat);
             dxy.copy_from_slice(&gg.xy_offset);
         });
+    lap(Phase::Gather, start);
     out
 }

@@ -96,7 +96,7 @@ fn eval_alpha<F: Real>(s: &Splat<F>, power: F, cutoff: AlphaCutoff) -> (F, F, F,
 
 /// Bit mask of tile columns `[x0, x1)` (tile-local).
 #[inline(always)]
-fn col_mask(x0: u32, x1: u32) -> u32 {
+pub(crate) fn col_mask(x0: u32, x1: u32) -> u32 {
     ((1u64 << x1) as u32).wrapping_sub(1) & !((1u32 << x0) - 1)
 }
 
@@ -104,7 +104,13 @@ fn col_mask(x0: u32, x1: u32) -> u32 {
 /// its columns as a tile-local bit mask, and the `dx` of the tile's column 0 (column `lx` adds
 /// `lx`).
 #[inline(always)]
-fn clip_to_tile<F: Real>(s: &Splat<F>, ox: u32, oy: u32, ex: u32, ey: u32) -> (u32, u32, u32, F) {
+pub(crate) fn clip_to_tile<F: Real>(
+    s: &Splat<F>,
+    ox: u32,
+    oy: u32,
+    ex: u32,
+    ey: u32,
+) -> (u32, u32, u32, F) {
     let x0 = s.rect[0].max(ox);
     let x1 = s.rect[2].min(ex);
     let cols = col_mask(x0 - ox, x1 - ox);
@@ -113,7 +119,7 @@ fn clip_to_tile<F: Real>(s: &Splat<F>, ox: u32, oy: u32, ex: u32, ey: u32) -> (u
 }
 
 #[inline(always)]
-fn tile_bounds(t: usize, ctx: &RasterCtx<'_, impl Real>) -> (u32, u32, u32, u32) {
+pub(crate) fn tile_bounds(t: usize, ctx: &RasterCtx<'_, impl Real>) -> (u32, u32, u32, u32) {
     let ox = (t as u32 % ctx.tiles_x) * TILE_SIZE;
     let oy = (t as u32 / ctx.tiles_x) * TILE_SIZE;
     let ex = (ox + TILE_SIZE).min(ctx.width);
@@ -243,7 +249,25 @@ fn rasterize_n<F: Real, const CH: usize>(
         })
         .sum();
 
-    // Tile-major -> row-major.
+    let image = tiles_to_rows(&tile_buf, ctx, stride);
+    drop(crossing_chunks);
+    (
+        image,
+        RasterState {
+            t_final,
+            n_contrib,
+            crossing,
+        },
+        evals,
+    )
+}
+
+/// Tile-major `[tile, 256, stride]` to the row-major image `[H, W, stride]`.
+pub(crate) fn tiles_to_rows<F: Real, G: Real>(
+    tile_buf: &[F],
+    ctx: &RasterCtx<'_, G>,
+    stride: usize,
+) -> Vec<F> {
     let w = ctx.width as usize;
     let mut image = vec![F::zero(); ctx.height as usize * w * stride];
     image
@@ -259,16 +283,7 @@ fn rasterize_n<F: Real, const CH: usize>(
                     .copy_from_slice(&tile_buf[p * stride..(p + 1) * stride]);
             }
         });
-    drop(crossing_chunks);
-    (
-        image,
-        RasterState {
-            t_final,
-            n_contrib,
-            crossing,
-        },
-        evals,
-    )
+    image
 }
 
 /// Number of gradient values stored per (tile, splat) intersection: screen mean (2), conic (3),

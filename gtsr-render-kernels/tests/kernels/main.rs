@@ -11,5 +11,6 @@ mod determinism;
 mod errors;
 mod forward;
 mod gradients;
+mod lanes;
 mod stiff;
 mod upstream;
