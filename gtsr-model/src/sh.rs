@@ -33,10 +33,17 @@ pub fn coeffs(degree: u32) -> usize {
 /// The `[N, coeffs(degree) - 1]` basis values beyond DC for unit directions `dirs` `[N, 3]`
 /// (`None` for degree 0).
 pub fn basis_rest(dirs: &Tensor<2>, degree: u32) -> Option<Tensor<2>> {
+    basis_rest_rows(dirs, degree).map(|rows| rows.transpose())
+}
+
+/// [`basis_rest`] as `[coeffs(degree) - 1, N]`: one contiguous row per basis function (rows
+/// stack without strided writes on the NdArray backend).
+fn basis_rest_rows(dirs: &Tensor<2>, degree: u32) -> Option<Tensor<2>> {
     if degree == 0 {
         return None;
     }
-    let col = |j: usize| crate::layout::cols(dirs, j..j + 1);
+    let n = dirs.dims()[0];
+    let col = |j: usize| crate::layout::col(dirs, j);
     let (x, y, z) = (col(0), col(1), col(2));
     let mut b = vec![y.clone() * (-C1), z.clone() * C1, x.clone() * (-C1)];
     if degree >= 2 {
@@ -60,7 +67,8 @@ pub fn basis_rest(dirs: &Tensor<2>, degree: u32) -> Option<Tensor<2>> {
             b.push(x * (xx - yy * 3.0) * C3[6]);
         }
     }
-    Some(Tensor::cat(b, 1))
+    let rows = b.into_iter().map(|r| r.reshape([1, n])).collect();
+    Some(Tensor::cat(rows, 0))
 }
 
 /// RGB colours `[N, 3]` from DC `[N, 3]` and higher coefficients `[N, (K - 1) * 3]`
@@ -72,13 +80,27 @@ pub fn colours(
     dirs: &Tensor<2>,
     degree: u32,
 ) -> Tensor<2> {
-    let n = dc.dims()[0];
     let mut c = dc.clone() * C0 + 0.5;
-    if let (Some(rest), Some(basis)) = (rest, basis_rest(dirs, degree)) {
-        let k = basis.dims()[1];
-        let rest = rest.clone().slice([0..n, 0..k * 3]).reshape([n, k, 3]);
-        let add = (basis.reshape([n, k, 1]) * rest).sum_dim(1).reshape([n, 3]);
-        c = c + add;
+    if let (Some(rest), Some(rows)) = (rest, basis_rest_rows(dirs, degree)) {
+        let k = rows.dims()[0];
+        let total = rest.dims()[1];
+        // Each basis value repeated over its three coefficients ([k, total], zero past the
+        // degree in use), multiplied by the coefficients, then summed per channel
+        // ([total, 3]): two small products and one contiguous multiplication.
+        let mut spread = vec![0f32; k * total];
+        let mut per_channel = vec![0f32; total * 3];
+        for j in 0..k {
+            for ch in 0..3 {
+                spread[j * total + 3 * j + ch] = 1.0;
+                per_channel[(3 * j + ch) * 3 + ch] = 1.0;
+            }
+        }
+        let (device, dtype) = (rest.device(), rest.dtype());
+        let constant = |v: Vec<f32>, shape: [usize; 2]| {
+            Tensor::<2>::from_data(burn::tensor::TensorData::new(v, shape), &device).cast(dtype)
+        };
+        let b3 = rows.transpose().matmul(constant(spread, [k, total]));
+        c = c + (b3 * rest.clone()).matmul(constant(per_channel, [total, 3]));
     }
     c.clamp_min(0.0)
 }

@@ -248,8 +248,22 @@ pub fn render(inputs: SplatInputs, config: &SplatConfig) -> Result<RenderOutput,
     );
     let out: Tensor<3> = Tensor::from_dispatch(out);
     let aux: Tensor<2> = Tensor::from_dispatch(aux);
-    let image = out.clone().slice([0..h, 0..w, 0..c]);
-    let alpha = out.slice([0..h, 0..w, c..c + 1]).reshape([h, w]);
+    // Image and alpha as products with 0/1 selection matrices rather than last-axis slices:
+    // on the NdArray backend a slice along the last axis is a strided view, and every op that
+    // reads one (here each loss term, forward and backward) runs several times slower than on
+    // contiguous memory. The values are the same.
+    let flat = out.reshape([h * w, c + 1]);
+    let (device, dtype) = (flat.device(), flat.dtype());
+    let select = |cols: std::ops::Range<usize>| {
+        let k = cols.len();
+        let mut v = vec![0f32; (c + 1) * k];
+        for (j, col) in cols.enumerate() {
+            v[col * k + j] = 1.0;
+        }
+        Tensor::<2>::from_data(TensorData::new(v, [c + 1, k]), &device).cast(dtype)
+    };
+    let image = flat.clone().matmul(select(0..c)).reshape([h, w, c]);
+    let alpha = flat.matmul(select(c..c + 1)).reshape([h, w]);
     Ok(RenderOutput { image, alpha, aux })
 }
 

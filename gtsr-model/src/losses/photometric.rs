@@ -1,7 +1,5 @@
 //! L1 and SSIM (11x11 Gaussian window, sigma 1.5, zero padding, as 3DGS), differentiable.
 
-use burn::tensor::module::conv2d;
-use burn::tensor::ops::ConvOptions;
 use burn::tensor::{Tensor, TensorData};
 
 const WINDOW: usize = 11;
@@ -23,26 +21,58 @@ fn gaussian_window() -> Vec<f32> {
     w.iter().map(|v| (v / s) as f32).collect()
 }
 
-/// Separable Gaussian blur of `[1, C, H, W]` with zero padding.
-fn blur(x: Tensor<4>) -> Tensor<4> {
-    let c = x.dims()[1];
-    let device = x.device();
+/// `[n, n]` matrix `B` of the 1-D Gaussian blur with zero padding on a length-`n` signal:
+/// `(B x)[i] = sum_k g[k] x[i + k - p]`, with `p = WINDOW / 2` and `x` zero outside `[0, n)`.
+fn blur_matrix(n: usize) -> Vec<f32> {
     let g = gaussian_window();
-    let taps: Vec<f32> = (0..c).flat_map(|_| g.iter().copied()).collect();
-    let kv = Tensor::<4>::from_data(TensorData::new(taps.clone(), [c, 1, WINDOW, 1]), &device)
-        .cast(x.dtype());
-    let kh =
-        Tensor::<4>::from_data(TensorData::new(taps, [c, 1, 1, WINDOW]), &device).cast(x.dtype());
     let p = WINDOW / 2;
-    let y = conv2d(x, kv, None, ConvOptions::new([1, 1], [p, 0], [1, 1], c));
-    conv2d(y, kh, None, ConvOptions::new([1, 1], [0, p], [1, 1], c))
+    let mut m = vec![0f32; n * n];
+    for i in 0..n {
+        for (k, &gk) in g.iter().enumerate() {
+            if let Some(j) = (i + k).checked_sub(p).filter(|&j| j < n) {
+                m[i * n + j] = gk;
+            }
+        }
+    }
+    m
+}
+
+/// Separable Gaussian blur of `[C, H, W]` planes with zero padding, as two matrix products
+/// (along W: `X B_w^T`; along H: `B_h X` per plane). On the CPU backend this is several times
+/// faster than a grouped convolution, forward and backward.
+fn blur(x: Tensor<3>) -> Tensor<3> {
+    let [c, h, w] = x.dims();
+    let (device, dtype) = (x.device(), x.dtype());
+    let bw = blur_matrix(w);
+    // X B_w^T: entry (j, i) of the right factor is B_w[i][j].
+    let mut bw_t = vec![0f32; w * w];
+    for i in 0..w {
+        for j in 0..w {
+            bw_t[j * w + i] = bw[i * w + j];
+        }
+    }
+    let bw_t = Tensor::<2>::from_data(TensorData::new(bw_t, [w, w]), &device).cast(dtype);
+    let y = x.reshape([c * h, w]).matmul(bw_t).reshape([c, h, w]);
+    let bh = blur_matrix(h);
+    let bh: Vec<f32> = (0..c).flat_map(|_| bh.iter().copied()).collect();
+    let bh = Tensor::<3>::from_data(TensorData::new(bh, [c, h, h]), &device).cast(dtype);
+    bh.matmul(y)
+}
+
+/// `[H, W, C]` to `[C, H, W]` planes, contiguous.
+fn planes(t: Tensor<3>) -> Tensor<3> {
+    let [h, w, c] = t.dims();
+    let rows = t.reshape([h * w, c]);
+    let planes = (0..c)
+        .map(|k| crate::layout::pick_cols(&rows, &[k]).reshape([1, h, w]))
+        .collect();
+    Tensor::cat(planes, 0)
 }
 
 /// The per-pixel SSIM map `[H, W]` (mean over channels) of two `[H, W, C]` images.
 pub fn ssim_map(a: Tensor<3>, b: Tensor<3>) -> Tensor<2> {
-    let [h, w, c] = a.dims();
-    let to4 = |t: Tensor<3>| t.permute([2, 0, 1]).reshape([1, c, h, w]);
-    let (a, b) = (to4(a), to4(b));
+    let [h, w, _] = a.dims();
+    let (a, b) = (planes(a), planes(b));
     let mu_a = blur(a.clone());
     let mu_b = blur(b.clone());
     let s_aa = blur(a.clone() * a.clone()) - mu_a.clone() * mu_a.clone();
@@ -50,7 +80,7 @@ pub fn ssim_map(a: Tensor<3>, b: Tensor<3>) -> Tensor<2> {
     let s_ab = blur(a * b) - mu_a.clone() * mu_b.clone();
     let num = (mu_a.clone() * mu_b.clone() * 2.0 + C1) * (s_ab * 2.0 + C2);
     let den = (mu_a.clone() * mu_a + mu_b.clone() * mu_b + C1) * (s_aa + s_bb + C2);
-    (num / den).mean_dim(1).reshape([h, w])
+    (num / den).mean_dim(0).reshape([h, w])
 }
 
 /// Mean SSIM of two `[H, W, C]` images.

@@ -1,6 +1,7 @@
 //! Regularisers: edge-aware material smoothness, flattening, mask supervision, opacity
 //! binarisation and layer spread.
 
+use burn::tensor::ops::PadMode;
 use burn::tensor::{Bool, Tensor};
 
 /// Edge-aware smoothness (Relightable 3DGS): mean over pixel pairs inside the mask of
@@ -8,16 +9,25 @@ use burn::tensor::{Bool, Tensor};
 /// exponential times the mask of both pixels). `map` is `[H, W, C]`.
 pub fn edge_aware_smoothness(map: &Tensor<3>, wx: &Tensor<2>, wy: &Tensor<2>) -> Tensor<1> {
     let [h, w, c] = map.dims();
-    let gx = (map.clone().slice([0..h, 1..w, 0..c]) - map.clone().slice([0..h, 0..w - 1, 0..c]))
-        .abs()
-        .mean_dim(2)
-        .reshape([h, w - 1]);
-    let gy = (map.clone().slice([1..h, 0..w, 0..c]) - map.clone().slice([0..h - 1, 0..w, 0..c]))
-        .abs()
-        .mean_dim(2)
-        .reshape([h - 1, w]);
+    let m = h * w;
+    // Pixels in row-major order: x neighbours are one row of the list apart, y neighbours w
+    // rows (differences of contiguous row ranges). The x pairs that wrap from one image row to
+    // the next get weight 0.
+    let px = map.clone().reshape([m, c]);
+    let mean_abs = |d: Tensor<2>, len: usize| d.abs().sum_dim(1).reshape([len]) / c as f64;
+    let gx = mean_abs(
+        px.clone().slice([1..m]) - px.clone().slice([0..m - 1]),
+        m - 1,
+    );
+    let gy = mean_abs(px.clone().slice([w..m]) - px.slice([0..m - w]), m - w);
+    let wx_rows = wx
+        .clone()
+        .pad([(0, 0), (0, 1)], PadMode::Constant(0.0))
+        .reshape([m])
+        .slice([0..m - 1]);
+    let wy_rows = wy.clone().reshape([m - w]);
     let count = (wx.clone().sum() + wy.clone().sum()).clamp_min(1.0);
-    ((gx * wx.clone()).sum() + (gy * wy.clone()).sum()) / count
+    ((gx * wx_rows).sum() + (gy * wy_rows).sum()) / count
 }
 
 /// PGSR flattening: the mean of each Gaussian's smallest scale.
