@@ -82,21 +82,6 @@ pub fn cat_cols(parts: Vec<Tensor<2>>) -> Tensor<2> {
     out.expect("at least one part")
 }
 
-/// `[h, w, sum c_i]` from parts `[h, w, c_i]` side by side.
-pub fn cat_channels(parts: Vec<Tensor<3>>) -> Tensor<3> {
-    let [h, w, _] = parts[0].dims();
-    let flat = parts
-        .into_iter()
-        .map(|p| {
-            let c = p.dims()[2];
-            p.reshape([h * w, c])
-        })
-        .collect();
-    let out = cat_cols(flat);
-    let c = out.dims()[1];
-    out.reshape([h, w, c])
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -112,13 +97,25 @@ mod tests {
             host(channels(&t, 1..4)),
             host(t.clone().slice([0..2, 0..3, 1..4]))
         );
-        let parts = vec![
-            t.clone().slice([0..2, 0..3, 0..2]),
-            t.clone().slice([0..2, 0..3, 2..3]),
-            t.clone().slice([0..2, 0..3, 3..5]),
-        ];
-        assert_eq!(host(cat_channels(parts)), host(t.clone()));
         let flat = t.reshape([6, 5]);
+        let parts = vec![
+            flat.clone().slice([0..6, 0..2]),
+            flat.clone().slice([0..6, 2..3]),
+            flat.clone().slice([0..6, 3..5]),
+        ];
+        let host2 = |t: Tensor<2>| t.into_data().to_vec::<f32>().unwrap();
+        assert_eq!(host2(cat_cols(parts)), host2(flat.clone()));
+        assert_eq!(
+            host2(pick_cols(&flat, &[4, 0, 4])),
+            host2(Tensor::cat(
+                vec![
+                    flat.clone().slice([0..6, 4..5]),
+                    flat.clone().slice([0..6, 0..1]),
+                    flat.clone().slice([0..6, 4..5]),
+                ],
+                1
+            ))
+        );
         assert_eq!(
             col(&flat, 4).into_data().to_vec::<f32>().unwrap(),
             flat.slice([0..6, 4..5])

@@ -128,14 +128,13 @@ fn single(size: u32, count: usize) {
         let grads = loss.backward();
         let _ = keep.grad(&grads).unwrap().into_data();
     };
-    let (step_ms, step_n) = time_it(step);
-    // Where one forward+backward call's time goes (CPU kernels only).
+    // Where the time of a forward+backward call goes (CPU kernels; mean over the timed calls
+    // and the warm-up).
     let k0 = cpu::kernel_times();
-    let t = Instant::now();
-    step();
-    let wall = t.elapsed();
+    let (step_ms, step_n) = time_it(step);
     let k = cpu::kernel_times().since(&k0);
-    let ms = |d: Duration| d.as_secs_f64() * 1e3;
+    let calls = (step_n + 1) as f64;
+    let ms = |d: Duration| d.as_secs_f64() * 1e3 / calls;
     println!(
         "PHASES {size} {count} {:.1} {:.1} {:.1} {:.1} {:.1} {:.1} {:.1}",
         ms(k.project),
@@ -144,7 +143,7 @@ fn single(size: u32, count: usize) {
         ms(k.blend_backward),
         ms(k.gather),
         ms(k.host_copies),
-        ms(wall.saturating_sub(k.total()))
+        (step_ms - ms(k.total())).max(0.0)
     );
     println!(
         "RESULT {size} {count} {fwd_ms:.2} {fwd_n} {step_ms:.2} {step_n} {evals} {isects} {:.1}",
@@ -222,8 +221,8 @@ fn main() {
     }
     if !phases.is_empty() {
         println!(
-            "\nOne forward+backward call by phase, ms (CPU kernels; `rest` is Burn's autodiff \
-             and tensor work around them):\n"
+            "\nOne forward+backward call by phase, mean ms (CPU kernels; `rest` is the median call \
+             minus the kernels: Burn's autodiff and tensor work around them):\n"
         );
         println!(
             "| image | Gaussians | projection | sort + binning | blend fwd | blend bwd | gather + projection bwd | host copies | rest |"
