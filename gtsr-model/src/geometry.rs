@@ -189,8 +189,8 @@ pub fn normals_from_depth(
     // neighbours wrap to the next row, are zeroed by `border`.
     let p = (rays.clone() * depth.clone().reshape([h, w, 1])).reshape([m, 3]);
     let mid = m - 2 * w;
-    let dx = p.clone().slice([w + 1..m - w + 1]) - p.clone().slice([w - 1..m - w - 1]);
-    let dy = p.clone().slice([2 * w..m]) - p.slice([0..mid]);
+    let dx = crate::layout::rows(&p, w + 1..m - w + 1) - crate::layout::rows(&p, w - 1..m - w - 1);
+    let dy = crate::layout::rows(&p, 2 * w..m) - crate::layout::rows(&p, 0..mid);
     let n = cross_rows(&dx, &dy).neg();
     let len = (n.clone() * n.clone()).sum_dim(1).clamp_min(1e-20).sqrt();
     let mut border = vec![1f32; mid];
@@ -209,11 +209,11 @@ pub fn normals_from_depth(
     };
     let n = pad_rows(n).reshape([h, w, 3]);
     let vf = valid.clone().float().cast(dtype).reshape([m]);
-    let inner = vf.clone().slice([w..m - w])
-        * vf.clone().slice([w + 1..m - w + 1])
-        * vf.clone().slice([w - 1..m - w - 1])
-        * vf.clone().slice([2 * w..m])
-        * vf.slice([0..mid])
+    let inner = crate::layout::rows(&vf, w..m - w)
+        * crate::layout::rows(&vf, w + 1..m - w + 1)
+        * crate::layout::rows(&vf, w - 1..m - w - 1)
+        * crate::layout::rows(&vf, 2 * w..m)
+        * crate::layout::rows(&vf, 0..mid)
         * border;
     (n, pad_rows(inner.reshape([mid, 1])).reshape([h, w]))
 }

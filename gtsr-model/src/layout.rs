@@ -65,6 +65,12 @@ pub fn channel(t: &Tensor<3>, k: usize) -> Tensor<2> {
     channels(t, k..k + 1).reshape([h, w])
 }
 
+/// Rows `range` of `t` (its first axis): contiguous when `t` is.
+#[allow(clippy::single_range_in_vec_init)] // one range: the first axis only
+pub fn rows<const D: usize>(t: &Tensor<D>, range: Range<usize>) -> Tensor<D> {
+    t.clone().slice([range])
+}
+
 /// `[m, sum c_i]` from parts `[m, c_i]` side by side.
 pub fn cat_cols(parts: Vec<Tensor<2>>) -> Tensor<2> {
     let total: usize = parts.iter().map(|p| p.dims()[1]).sum();

@@ -16,15 +16,19 @@ pub fn edge_aware_smoothness(map: &Tensor<3>, wx: &Tensor<2>, wy: &Tensor<2>) ->
     let px = map.clone().reshape([m, c]);
     let mean_abs = |d: Tensor<2>, len: usize| d.abs().sum_dim(1).reshape([len]) / c as f64;
     let gx = mean_abs(
-        px.clone().slice([1..m]) - px.clone().slice([0..m - 1]),
+        crate::layout::rows(&px, 1..m) - crate::layout::rows(&px, 0..m - 1),
         m - 1,
     );
-    let gy = mean_abs(px.clone().slice([w..m]) - px.slice([0..m - w]), m - w);
-    let wx_rows = wx
-        .clone()
-        .pad([(0, 0), (0, 1)], PadMode::Constant(0.0))
-        .reshape([m])
-        .slice([0..m - 1]);
+    let gy = mean_abs(
+        crate::layout::rows(&px, w..m) - crate::layout::rows(&px, 0..m - w),
+        m - w,
+    );
+    let wx_rows = crate::layout::rows(
+        &wx.clone()
+            .pad([(0, 0), (0, 1)], PadMode::Constant(0.0))
+            .reshape([m]),
+        0..m - 1,
+    );
     let wy_rows = wy.clone().reshape([m - w]);
     let count = (wx.clone().sum() + wy.clone().sum()).clamp_min(1.0);
     ((gx * wx_rows).sum() + (gy * wy_rows).sum()) / count

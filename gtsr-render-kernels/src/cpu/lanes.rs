@@ -589,7 +589,7 @@ fn backward_tile(op: BackwardTile<'_>) {
                     for i in 0..CHUNK {
                         // w_on is 0 on lanes that blend nothing.
                         df_new[i] = df[i] + w_on[i] * gc[i];
-                        d_alpha[i] = d_alpha[i] + gc[i] * (t_i[i] * f - bk[i] * inv_om[i]);
+                        d_alpha[i] += gc[i] * (t_i[i] * f - bk[i] * inv_om[i]);
                         bk_new[i] = bk[i] + f * w_on[i];
                     }
                     *chunk(&mut back[ch * TILE_PIXELS..], at) = bk_new;
@@ -599,16 +599,16 @@ fn backward_tile(op: BackwardTile<'_>) {
                 let (db, dc, dop) = (chunk(&mut db, o), chunk(&mut dc, o), chunk(&mut dop, o));
                 for i in 0..CHUNK {
                     // A capped alpha does not depend on the parameters.
-                    let on = (ok[i] != 0) & !(raw[i] > amax);
+                    let on = (ok[i] != 0) & (raw[i] <= amax);
                     let d_raw = if on { d_alpha[i] } else { 0.0 };
                     let d_power = d_raw * raw[i];
                     let dx = dxs[i];
-                    du[i] = du[i] + d_power * (ca * dx + cb * dy);
-                    dv[i] = dv[i] + d_power * (cb * dx + cc * dy);
-                    da[i] = da[i] - 0.5 * d_power * dx * dx;
-                    db[i] = db[i] - d_power * dx * dy;
-                    dc[i] = dc[i] - 0.5 * d_power * dy * dy;
-                    dop[i] = dop[i] + d_raw * gauss[i];
+                    du[i] += d_power * (ca * dx + cb * dy);
+                    dv[i] += d_power * (cb * dx + cc * dy);
+                    da[i] -= 0.5 * d_power * dx * dx;
+                    db[i] -= d_power * dx * dy;
+                    dc[i] -= 0.5 * d_power * dy * dy;
+                    dop[i] += d_raw * gauss[i];
                 }
             }
         }
