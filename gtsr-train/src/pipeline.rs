@@ -388,6 +388,17 @@ pub fn run(args: &Args) -> Result<Outcome> {
             .and_then(|s| serde_json::from_str(&s).ok())
             .unwrap_or_default();
         let tl = Timeline::read_csv(&timeline_path).unwrap_or_default();
+        if let Some(n) = args.iterations
+            && n != t.config.iterations
+        {
+            bail!(
+                "--iterations {n} with --resume: the run in {} was started for {} steps and \
+                 its schedule (stage 2, learning-rate decay, densification) depends on that; \
+                 resume without --iterations, or start a new run",
+                args.out.display(),
+                t.config.iterations
+            );
+        }
         println!("resuming at step {} of {}", t.step, t.config.iterations);
         (t, state.train_seconds, tl)
     } else {

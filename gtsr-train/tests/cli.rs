@@ -93,6 +93,18 @@ fn trains_a_tiny_scene_and_writes_every_output() {
     // --resume on a finished run re-extracts and re-evaluates without training further.
     let o = gtsr_train(&scene, &out, &[&TINY_RUN[..], &["--resume"]].concat());
     assert!(o.status.success(), "{}", text(&o));
+    // Another step count cannot resume the run: its schedule was laid out for 40.
+    let o = gtsr_train(
+        &scene,
+        &out,
+        &["--iterations", "41", "--resolution", "24", "--resume"],
+    );
+    assert!(!o.status.success(), "{}", text(&o));
+    assert!(
+        text(&o).contains("--iterations 41 with --resume") && text(&o).contains("40 steps"),
+        "{}",
+        text(&o)
+    );
     // And with the other depth and fusion options.
     let o = gtsr_train(
         &scene,
