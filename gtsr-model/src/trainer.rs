@@ -104,15 +104,7 @@ impl StepTimes {
         self.gradients += other.gradients;
         self.adam += other.adam;
         self.densify += other.densify;
-        let (k, o) = (&mut self.kernels, &other.kernels);
-        k.project += o.project;
-        k.sort_bin += o.sort_bin;
-        k.blend_forward += o.blend_forward;
-        k.blend_backward += o.blend_backward;
-        k.gather += o.gather;
-        k.host_copies += o.host_copies;
-        k.forward_calls += o.forward_calls;
-        k.backward_calls += o.backward_calls;
+        self.kernels += &other.kernels;
         for (name, d) in &other.forward_parts {
             match self.forward_parts.iter_mut().find(|(n, _)| n == name) {
                 Some(slot) => slot.1 += *d,

@@ -84,23 +84,8 @@ fn single(size: u32, count: usize) {
     let scene = random_scene(2024, &RandomSceneSpec::bench(count, size, size));
     let cfg = scene.config(AlphaCutoff::Hard);
     // Work counts from the host kernels (same code the backend runs).
-    let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
-    let (m, q, s, o, f, xy) = (
-        f32s(&scene.means),
-        f32s(&scene.quats),
-        f32s(&scene.scales),
-        f32s(&scene.opacities),
-        f32s(&scene.features),
-        f32s(&scene.xy_offsets),
-    );
-    let host = cpu::HostGaussians {
-        means: &m,
-        quats: &q,
-        scales: &s,
-        opacities: &o,
-        features: &f,
-        xy_offsets: &xy,
-    };
+    let scene32 = scene.to_f32();
+    let host = scene32.host();
     let counts = cpu::forward(&host, &cfg);
     let evals = counts.evaluations as f64;
     let isects = counts.intersections;

@@ -57,6 +57,19 @@ impl HostScene {
         }
     }
 
+    /// The inputs rounded to f32, for the host kernels in f32 ([`HostScene32::host`]).
+    pub fn to_f32(&self) -> HostScene32 {
+        let f = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
+        HostScene32 {
+            means: f(&self.means),
+            quats: f(&self.quats),
+            scales: f(&self.scales),
+            opacities: f(&self.opacities),
+            features: f(&self.features),
+            xy_offsets: f(&self.xy_offsets),
+        }
+    }
+
     /// The render configuration with the given cut-off.
     pub fn config(&self, cutoff: AlphaCutoff) -> SplatConfig {
         SplatConfig {
@@ -96,6 +109,37 @@ impl HostScene {
         self.opacities.extend_from_slice(&other.opacities);
         self.features.extend_from_slice(&other.features);
         self.xy_offsets.extend_from_slice(&other.xy_offsets);
+    }
+}
+
+/// A [`HostScene`]'s inputs in f32 ([`HostScene::to_f32`]).
+#[derive(Clone, Debug)]
+pub struct HostScene32 {
+    /// `[N, 3]`
+    pub means: Vec<f32>,
+    /// `[N, 4]`
+    pub quats: Vec<f32>,
+    /// `[N, 3]`
+    pub scales: Vec<f32>,
+    /// `[N]`
+    pub opacities: Vec<f32>,
+    /// `[N, C]`
+    pub features: Vec<f32>,
+    /// `[N, 2]`
+    pub xy_offsets: Vec<f32>,
+}
+
+impl HostScene32 {
+    /// Host view for [`crate::cpu`].
+    pub fn host(&self) -> HostGaussians<'_, f32> {
+        HostGaussians {
+            means: &self.means,
+            quats: &self.quats,
+            scales: &self.scales,
+            opacities: &self.opacities,
+            features: &self.features,
+            xy_offsets: &self.xy_offsets,
+        }
     }
 }
 

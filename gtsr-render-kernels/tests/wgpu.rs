@@ -145,26 +145,12 @@ fn grad_errors(scene: &HostScene, got: &[Vec<f64>; 6], want: &[Vec<f64>; 6]) -> 
 
 /// The CPU's f32 gradients on the per-pixel blend for `loss = sum(weights * [image, alpha])`.
 fn per_pixel_f32(scene: &HostScene, cutoff: AlphaCutoff, weights: &[f64]) -> [Vec<f64>; 6] {
-    let f = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
-    let inputs = [
-        f(&scene.means),
-        f(&scene.quats),
-        f(&scene.scales),
-        f(&scene.opacities),
-        f(&scene.features),
-        f(&scene.xy_offsets),
-    ];
-    let host = cpu::HostGaussians {
-        means: &inputs[0],
-        quats: &inputs[1],
-        scales: &inputs[2],
-        opacities: &inputs[3],
-        features: &inputs[4],
-        xy_offsets: &inputs[5],
-    };
+    let scene32 = scene.to_f32();
+    let host = scene32.host();
+    let weights: Vec<f32> = weights.iter().map(|&w| w as f32).collect();
     let cfg = scene.config(cutoff);
     let out = cpu::forward_with(&host, &cfg, cpu::BlendPath::PerPixel);
-    let g = cpu::backward(&host, &cfg, &out.state, &f(weights));
+    let g = cpu::backward(&host, &cfg, &out.state, &weights);
     [
         g.means,
         g.quats,

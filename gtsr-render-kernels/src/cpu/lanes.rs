@@ -19,7 +19,9 @@ use rayon::prelude::*;
 
 use super::bin::Bins;
 use super::project::Splat;
-use super::raster::{RasterCtx, RasterState, SLOT_FIXED, clip_to_tile, col_mask, tile_bounds};
+use super::raster::{
+    RasterCtx, RasterState, RowPower, SLOT_FIXED, clip_to_tile, col_mask, per_tile, tile_bounds,
+};
 use crate::config::{ALPHA_MAX, ALPHA_MIN, TILE_PIXELS, TILE_SIZE, TRANSMITTANCE_MIN};
 use crate::scalar::Real;
 
@@ -311,8 +313,6 @@ fn forward_tile(op: ForwardTile<'_>) -> u64 {
         let feat = &feats[k * c..(k + 1) * c];
         let (y0, y1, cols, dx0) = clip_to_tile(s, ox, oy, ex, ey);
         let k1 = k as u32 + 1;
-        let [ca, cb, cc] = s.conic;
-        let ha = -0.5 * ca;
         for y in y0..y1 {
             let ly = (y - oy) as usize;
             let bits = alive[ly] & cols;
@@ -321,8 +321,7 @@ fn forward_tile(op: ForwardTile<'_>) -> u64 {
             }
             evals += u64::from(bits.count_ones());
             let dy = (y as f32 + 0.5) - s.xy[1];
-            let lin = -(cb * dy);
-            let cst = -0.5 * cc * dy * dy;
+            let rp = RowPower::new(s, dy);
             for o in (0..LANES).step_by(CHUNK) {
                 let cb_bits = (bits >> o) & CHUNK_MASK;
                 if cb_bits == 0 {
@@ -340,7 +339,7 @@ fn forward_tile(op: ForwardTile<'_>) -> u64 {
                 let mut kill = [0u32; CHUNK];
                 for i in 0..CHUNK {
                     let dx = dx0 + xs[i];
-                    let power = (ha * dx + lin) * dx + cst;
+                    let power = rp.at(dx);
                     let raw = s.opacity * exp_lanes(power);
                     let alpha = if raw < amax { raw } else { amax };
                     let live = (cb_bits >> i) & 1 == 1;
@@ -397,13 +396,7 @@ fn backward_f32<F: Real>(
     let c = ctx.channels;
     let slot = SLOT_FIXED + c;
     let mut slots = vec![0f32; bins.packed.len() * slot];
-    let mut views: Vec<&mut [f32]> = Vec::with_capacity(bins.tile_ranges.len());
-    let mut rest: &mut [f32] = &mut slots;
-    for r in &bins.tile_ranges {
-        let (head, tail) = rest.split_at_mut((r[1] - r[0]) as usize * slot);
-        views.push(head);
-        rest = tail;
-    }
+    let views = per_tile(&mut slots, &bins.tile_ranges, slot);
     views.into_par_iter().enumerate().for_each(|(t, out)| {
         let [start, end] = bins.tile_ranges[t];
         if start == end {
@@ -517,7 +510,6 @@ fn backward_tile(op: BackwardTile<'_>) {
         let feat = &feats[k * c..(k + 1) * c];
         let (y0, y1, cols, dx0) = clip_to_tile(s, ox, oy, ex, ey);
         let [ca, cb, cc] = s.conic;
-        let ha = -0.5 * ca;
         let mut du = [0f32; LANES];
         let mut dv = [0f32; LANES];
         let mut da = [0f32; LANES];
@@ -536,8 +528,7 @@ fn backward_tile(op: BackwardTile<'_>) {
             }
             touched = true;
             let dy = (y as f32 + 0.5) - s.xy[1];
-            let lin = -(cb * dy);
-            let cst = -0.5 * cc * dy * dy;
+            let rp = RowPower::new(s, dy);
             for o in (0..LANES).step_by(CHUNK) {
                 let cb_bits = (bits >> o) & CHUNK_MASK;
                 if cb_bits == 0 {
@@ -560,7 +551,7 @@ fn backward_tile(op: BackwardTile<'_>) {
                 let mut dxs = [0f32; CHUNK];
                 for i in 0..CHUNK {
                     let dx = dx0 + xs[i];
-                    let power = (ha * dx + lin) * dx + cst;
+                    let power = rp.at(dx);
                     let g = exp_lanes(power);
                     let r = s.opacity * g;
                     let alpha = if r < amax { r } else { amax };

@@ -43,7 +43,7 @@ pub(crate) struct RasterState<F> {
 /// `ha = -a/2`, `lin = -b dy`, `cst = -c dy^2 / 2`, so that each pixel costs two fused steps.
 /// Forward and backward use this same evaluation, so their cut-off decisions agree exactly.
 #[derive(Clone, Copy)]
-struct RowPower<F> {
+pub(crate) struct RowPower<F> {
     ha: F,
     lin: F,
     cst: F,
@@ -51,7 +51,7 @@ struct RowPower<F> {
 
 impl<F: Real> RowPower<F> {
     #[inline(always)]
-    fn new(s: &Splat<F>, dy: F) -> Self {
+    pub(crate) fn new(s: &Splat<F>, dy: F) -> Self {
         let [a, b, c] = s.conic;
         let h = F::c(-0.5);
         Self {
@@ -62,7 +62,7 @@ impl<F: Real> RowPower<F> {
     }
 
     #[inline(always)]
-    fn at(&self, dx: F) -> F {
+    pub(crate) fn at(&self, dx: F) -> F {
         (self.ha * dx + self.lin) * dx + self.cst
     }
 }
@@ -286,6 +286,22 @@ pub(crate) fn tiles_to_rows<F: Real, G: Real>(
     image
 }
 
+/// Disjoint per-tile views of a buffer holding `per_isect` values per intersection.
+pub(crate) fn per_tile<'a, T>(
+    buf: &'a mut [T],
+    tile_ranges: &[[u32; 2]],
+    per_isect: usize,
+) -> Vec<&'a mut [T]> {
+    let mut views = Vec::with_capacity(tile_ranges.len());
+    let mut rest = buf;
+    for r in tile_ranges {
+        let (head, tail) = rest.split_at_mut((r[1] - r[0]) as usize * per_isect);
+        views.push(head);
+        rest = tail;
+    }
+    views
+}
+
 /// Number of gradient values stored per (tile, splat) intersection: screen mean (2), conic (3),
 /// opacity (1), then the features.
 pub(crate) const SLOT_FIXED: usize = 6;
@@ -321,14 +337,7 @@ fn rasterize_backward_n<F: Real, const CH: usize>(args: BackwardArgs<'_, '_, F>)
     let stride = c + 1;
     let slot = SLOT_FIXED + c;
     let mut slots = vec![F::zero(); bins.packed.len() * slot];
-    // Disjoint per-tile views of the slot buffer.
-    let mut views: Vec<&mut [F]> = Vec::with_capacity(bins.tile_ranges.len());
-    let mut rest: &mut [F] = &mut slots;
-    for r in &bins.tile_ranges {
-        let (head, tail) = rest.split_at_mut((r[1] - r[0]) as usize * slot);
-        views.push(head);
-        rest = tail;
-    }
+    let views = per_tile(&mut slots, &bins.tile_ranges, slot);
     let w = ctx.width as usize;
     let one = F::one();
     let half = F::c(0.5);

@@ -80,6 +80,19 @@ impl KernelTimes {
     }
 }
 
+impl std::ops::AddAssign<&KernelTimes> for KernelTimes {
+    fn add_assign(&mut self, o: &KernelTimes) {
+        self.project += o.project;
+        self.sort_bin += o.sort_bin;
+        self.blend_forward += o.blend_forward;
+        self.blend_backward += o.blend_backward;
+        self.gather += o.gather;
+        self.host_copies += o.host_copies;
+        self.forward_calls += o.forward_calls;
+        self.backward_calls += o.backward_calls;
+    }
+}
+
 /// A snapshot of the process-wide kernel timers.
 pub fn kernel_times() -> KernelTimes {
     let d = |p: Phase| Duration::from_nanos(NANOS[p as usize].load(Ordering::Relaxed));

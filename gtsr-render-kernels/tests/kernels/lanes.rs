@@ -1,52 +1,20 @@
 //! The f32 lane kernels (`cpu::BlendPath`): every instruction set gives bit-identical renders
 //! and gradients, and they agree with the per-pixel code and the f64 reference.
 
-use gtsr_render_kernels::cpu::{self, BlendPath, HostGaussians, HostGradients};
+use gtsr_render_kernels::cpu::{self, BlendPath, HostGradients};
 use gtsr_render_kernels::reference::render_reference;
 use gtsr_render_kernels::scenes::{
     HostScene, RandomSceneSpec, random_scene, random_weights, stiff_cases,
 };
 use gtsr_render_kernels::{AlphaCutoff, SplatConfig};
 
-/// A host scene's inputs in f32.
-struct Host32 {
-    v: [Vec<f32>; 6],
-}
-
-impl Host32 {
-    fn new(s: &HostScene) -> Self {
-        let f = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
-        Self {
-            v: [
-                f(&s.means),
-                f(&s.quats),
-                f(&s.scales),
-                f(&s.opacities),
-                f(&s.features),
-                f(&s.xy_offsets),
-            ],
-        }
-    }
-
-    fn view(&self) -> HostGaussians<'_, f32> {
-        HostGaussians {
-            means: &self.v[0],
-            quats: &self.v[1],
-            scales: &self.v[2],
-            opacities: &self.v[3],
-            features: &self.v[4],
-            xy_offsets: &self.v[5],
-        }
-    }
-}
-
 /// Forward and backward (loss = sum of weights * output) on one path.
 fn run(scene: &HostScene, path: BlendPath, weights: &[f64]) -> (Vec<f32>, HostGradients<f32>, u64) {
-    let h = Host32::new(scene);
+    let h = scene.to_f32();
     let cfg: SplatConfig = scene.config(AlphaCutoff::Hard);
-    let out = cpu::forward_with(&h.view(), &cfg, path);
+    let out = cpu::forward_with(&h.host(), &cfg, path);
     let grad: Vec<f32> = weights.iter().map(|&w| w as f32).collect();
-    let g = cpu::backward(&h.view(), &cfg, &out.state, &grad);
+    let g = cpu::backward(&h.host(), &cfg, &out.state, &grad);
     (out.image, g, out.evaluations)
 }
 
