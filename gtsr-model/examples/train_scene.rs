@@ -85,10 +85,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let train_s = t0.elapsed().as_secs_f64();
     let (mut p_sh, mut p_pbr, mut n) = (0.0, 0.0, 0);
+    let model = trainer.model.detached();
     for (i, v) in scene.test.iter().enumerate() {
         let vt = ViewTensors::new(v, i, &device)?;
         let opts = trainer.render_options(iterations, false);
-        let r = trainer.model.render(&vt.camera, &vt.rays, opts)?;
+        let r = model.render(&vt.camera, &vt.rays, opts)?;
         let sh: Vec<f32> = r
             .c_sh
             .into_data()

@@ -222,6 +222,32 @@ impl Model {
         )
     }
 
+    /// A copy whose parameters do not require gradients: its renders record no backward
+    /// steps. Evaluation and extraction render through it; with the training parameters each
+    /// render would leave its graph (and the kernels' saved state) in memory, since no
+    /// `backward` call consumes it. (`Tensor::detach` alone keeps a leaf's `require_grad`.)
+    pub fn detached(&self) -> Model {
+        let detach = |set: &GaussianSet| GaussianSet {
+            kind: set.kind,
+            params: set
+                .params
+                .iter()
+                .map(|(k, t)| (*k, t.clone().set_require_grad(false)))
+                .collect(),
+        };
+        Model {
+            components: self.components.clone(),
+            surface: detach(&self.surface),
+            interior: self.interior.as_ref().map(detach),
+            log_light: self
+                .log_light
+                .as_ref()
+                .map(|l| l.clone().set_require_grad(false)),
+            sh_degree: self.sh_degree,
+            blur_px2: self.blur_px2,
+        }
+    }
+
     /// Light intensity (with PBR).
     pub fn light(&self) -> Option<Tensor<2>> {
         self.log_light.as_ref().map(|l| l.clone().exp())
@@ -255,7 +281,7 @@ impl Model {
             quats,
             colours,
             normals_w,
-            offsets: (offsets && set.req(ParamKind::Means).device().is_autodiff()).then(|| {
+            offsets: (offsets && set.req(ParamKind::Means).is_require_grad()).then(|| {
                 Tensor::<2>::zeros(
                     [n, 2],
                     (

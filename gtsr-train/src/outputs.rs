@@ -206,6 +206,7 @@ pub fn extract_mesh(
     settings: &MeshSettings,
     coarse: bool,
 ) -> Result<TriMesh> {
+    let model = trainer.model.detached();
     let host_views: Vec<&gtsr_data::View> = if settings.fusion_views.is_empty() {
         scene.train.iter().collect()
     } else {
@@ -224,7 +225,7 @@ pub fn extract_mesh(
         let maps = host_views
             .iter()
             .enumerate()
-            .map(|(k, data)| Ok(fusion_depth(trainer, k, data, settings)?.0))
+            .map(|(k, data)| Ok(fusion_depth(trainer, &model, k, data, settings)?.0))
             .collect::<Result<Vec<_>>>()?;
         let depths: Vec<gtsr_eval::DepthMap> = host_views
             .iter()
@@ -289,7 +290,7 @@ pub fn extract_mesh(
     }
     let mut maps = Vec::with_capacity(host_views.len());
     for (k, data) in host_views.iter().enumerate() {
-        maps.push(fusion_depth(trainer, k, data, settings)?);
+        maps.push(fusion_depth(trainer, &model, k, data, settings)?);
     }
     if let Some(c) = &settings.consistency {
         let views: Vec<DepthView> = host_views
@@ -347,6 +348,7 @@ pub fn extract_mesh(
 /// least 0.5). `k` indexes the trainer's views when [`MeshSettings::fusion_views`] is empty.
 fn fusion_depth(
     trainer: &Trainer,
+    model: &Model,
     k: usize,
     data: &gtsr_data::View,
     settings: &MeshSettings,
@@ -354,17 +356,14 @@ fn fusion_depth(
     let (g, rays) = if settings.fusion_views.is_empty() {
         let v = &trainer.views[k];
         (
-            fusion_geometry(&trainer.model, &v.camera, &v.rays, settings)?,
+            fusion_geometry(model, &v.camera, &v.rays, settings)?,
             v.rays.clone(),
         )
     } else {
         let device = trainer.views[0].rays.device();
         let camera = kernel_camera(&data.camera, &data.name)?;
         let rays = pixel_rays(&camera, &device);
-        (
-            fusion_geometry(&trainer.model, &camera, &rays, settings)?,
-            rays,
-        )
+        (fusion_geometry(model, &camera, &rays, settings)?, rays)
     };
     let normal = host_vec(g.normal);
     let rays = host_vec(rays);
@@ -408,12 +407,13 @@ pub fn evaluate(
     coarse: bool,
 ) -> Result<Evaluation> {
     let t0 = Instant::now();
+    let model = trainer.model.detached();
     let opts = trainer.render_options(trainer.step, false);
     let (mut p, mut s, mut pm, mut pp, mut n, mut nm, mut np) =
         (0.0, 0.0, 0.0, 0.0, 0usize, 0usize, 0usize);
     for (v, data) in tests.iter().zip(&scene.test) {
         let (w, h) = v.size();
-        let r = trainer.model.render(&v.camera, &v.rays, opts)?;
+        let r = model.render(&v.camera, &v.rays, opts)?;
         let img: Vec<f32> = host_vec(r.c_sh).iter().map(|x| x.clamp(0.0, 1.0)).collect();
         let pred = ImageRef::new(w, h, 3, &img);
         let gt_img = ImageRef::new(w, h, 3, &data.rgb);
@@ -448,7 +448,7 @@ pub fn evaluate(
         _ => (None, None, None),
     };
     let depth = match gt {
-        Some(gt) if !coarse => test_view_geometry(trainer, tests, scene, gt, settings)?,
+        Some(gt) if !coarse => test_view_geometry(&model, tests, scene, gt, settings)?,
         _ => None,
     };
     let avg = |x: f64, k: usize| if k > 0 { Some(x / k as f64) } else { None };
@@ -470,7 +470,7 @@ pub fn evaluate(
 /// ground-truth mask (all pixels without one) that the surface covers (coverage >= 0.5).
 /// The depth is the raw render, before the grazing and edge filters of the fusion.
 fn test_view_geometry(
-    trainer: &Trainer,
+    model: &Model,
     tests: &[ViewTensors],
     scene: &Scene,
     gt: &TriMesh,
@@ -480,7 +480,7 @@ fn test_view_geometry(
     let mut cmp = DepthComparison::new();
     for (v, data) in tests.iter().zip(&scene.test) {
         let truth = caster.render(&data.camera);
-        let g = fusion_geometry(&trainer.model, &v.camera, &v.rays, settings)?;
+        let g = fusion_geometry(model, &v.camera, &v.rays, settings)?;
         let depth = host_vec(g.depth);
         let normal = host_vec(g.normal);
         let cov = host_vec(g.coverage);
@@ -527,14 +527,15 @@ fn write_strips(
     dir: &Path,
 ) -> Result<usize> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let model = trainer.model.detached();
     let mut opts = trainer.render_options(trainer.step, false);
     opts.geometry = true;
     for (k, (v, data)) in tests.iter().zip(&scene.test).enumerate() {
         let (w, h) = v.size();
-        let r = trainer.model.render(&v.camera, &v.rays, opts)?;
+        let r = model.render(&v.camera, &v.rays, opts)?;
         let geo = match r.geometry.clone() {
             Some(g) => g,
-            None => trainer.model.render_depth(&v.camera, &v.rays)?,
+            None => model.render_depth(&v.camera, &v.rays)?,
         };
         let sh = host_vec(r.c_sh);
         let pbr = r.c_pbr.map(host_vec);

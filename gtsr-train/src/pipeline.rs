@@ -560,6 +560,9 @@ pub fn run(args: &Args) -> Result<Outcome> {
         if stop.load(Ordering::SeqCst) {
             bar.abandon_with_message("interrupted");
             println!("Ctrl-C: writing a checkpoint and partial outputs");
+            if args.profile {
+                write_profile(&profile, &trainer, &args.out)?;
+            }
             save_checkpoint(&trainer, &ckpt_path, &state_path, train_seconds)?;
             timeline.write_csv(&timeline_path)?;
             outputs::write_splats(&trainer, &args.out)?;
@@ -633,9 +636,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
     }
     bar.finish_and_clear();
     if args.profile {
-        let table = profile_table(&profile, &trainer);
-        println!("{table}");
-        outputs::write_text(&args.out.join("profile.md"), &table)?;
+        write_profile(&profile, &trainer, &args.out)?;
     }
     save_checkpoint(&trainer, &ckpt_path, &state_path, train_seconds)?;
     timeline.write_csv(&timeline_path)?;
@@ -650,6 +651,13 @@ pub fn run(args: &Args) -> Result<Outcome> {
         &args.out,
     )?;
     Ok(Outcome::Finished)
+}
+
+/// Prints the profile table of the steps run so far and writes it to `profile.md`.
+fn write_profile(profile: &[(StepTimes, usize); 2], trainer: &Trainer, out: &Path) -> Result<()> {
+    let table = profile_table(profile, trainer);
+    println!("{table}");
+    outputs::write_text(&out.join("profile.md"), &table)
 }
 
 /// Mean milliseconds per step of each phase, per stage, as a markdown table.

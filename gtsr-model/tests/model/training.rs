@@ -63,3 +63,61 @@ fn every_parameter_tensor_receives_gradient() {
         );
     }
 }
+
+#[test]
+fn detached_model_renders_the_same_and_records_no_graph() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    let comps = Preset::Full.components().unwrap();
+    let mut t = trainer(&scene, small_config(comps, 30), &device);
+    t.step = 29; // stage 2: both sets, Fresnel, PBR
+    let opts = t.render_options(t.step, false);
+    let view = t.views[0].clone();
+    let tracked = t.model.render(&view.camera, &view.rays, opts).unwrap();
+    let model = t.model.detached();
+    let free = model.render(&view.camera, &view.rays, opts).unwrap();
+    assert!(
+        tracked.c_sh.is_tracked(),
+        "the training model's renders are in the graph"
+    );
+    assert!(
+        !free.c_sh.is_tracked(),
+        "a detached model's render records a graph"
+    );
+    let depth = model.render_depth(&view.camera, &view.rays).unwrap();
+    assert!(!depth.depth.is_tracked());
+    let sets = [Some(&model.surface), model.interior.as_ref()];
+    for set in sets.into_iter().flatten() {
+        for (kind, p) in &set.params {
+            assert!(!p.is_require_grad(), "{} still requires grad", kind.name());
+        }
+    }
+    assert!(
+        model
+            .log_light
+            .as_ref()
+            .is_some_and(|l| !l.is_require_grad())
+    );
+    // The training parameters are untouched.
+    assert!(
+        t.model
+            .surface
+            .params
+            .iter()
+            .all(|(_, p)| p.is_require_grad())
+    );
+    let a = tracked
+        .c_sh
+        .into_data()
+        .convert::<f32>()
+        .into_vec::<f32>()
+        .unwrap();
+    let b = free
+        .c_sh
+        .into_data()
+        .convert::<f32>()
+        .into_vec::<f32>()
+        .unwrap();
+    assert_eq!(a, b, "the detached render differs");
+}
