@@ -21,6 +21,11 @@ use serde::{Deserialize, Serialize};
 use crate::outputs::{self, MeshSettings};
 use crate::{Args, Backend};
 
+/// The default cap on the surface set (three per pixel of a view up to this).
+const MAX_SURFACE: usize = 65_536;
+/// The default cap on the interior set (one per pixel of a view up to this).
+const MAX_INTERIOR: usize = 32_768;
+
 /// How the run ended.
 pub enum Outcome {
     /// All iterations ran and the outputs were written.
@@ -140,12 +145,14 @@ fn resolve_config(
         let mut c = TrainConfig::for_iterations(components, iterations);
         // CPU-sized defaults: a few thousand steps on small images.
         // Caps scale with the image size: about 3 surface and 1 interior Gaussian per pixel
-        // of one view (64x64: 12k + 4k) are plenty at these resolutions and keep steps short.
+        // of one view (64x64: 12k + 4k; 128x128: 49k + 16k), and at most 64k + 32k: a stage-2
+        // step's cost grows with the Gaussians, and at 256 px the larger sets (196k + 65k)
+        // took twice the time per step for a lower test PSNR at equal training time.
         let pixels = scene.train[0].width() as usize * scene.train[0].height() as usize;
         c.init_surface = (pixels).clamp(2_000, 20_000);
         c.init_interior = (pixels / 2).clamp(1_000, 10_000);
-        c.densify.max_surface = (3 * pixels).clamp(10_000, 300_000);
-        c.densify.max_interior = pixels.clamp(4_000, 100_000);
+        c.densify.max_surface = (3 * pixels).clamp(10_000, MAX_SURFACE);
+        c.densify.max_interior = pixels.clamp(4_000, MAX_INTERIOR);
         // With masks on every training view: start the surface set inside them and weigh the
         // mask term as much as the images. With the paper's random start and 0.1 the surface
         // set on wax_knot (64 px, 1500 steps) stayed a smooth blob over the knot's holes, which
