@@ -1,6 +1,6 @@
 //! Error against run time: a log of evaluation points during training, written as CSV and
-//! plotted as PNG (PSNR against training time, and chamfer against training time when any
-//! point has one).
+//! plotted as PNG (PSNR against training time, and the chamfer and the depth error against
+//! training time when any point has them).
 
 use std::path::Path;
 
@@ -22,6 +22,11 @@ pub struct TimelinePoint {
     pub ssim: f64,
     /// Chamfer distance of the extracted mesh, when one was extracted.
     pub chamfer: Option<f64>,
+    /// Median absolute error of the rendered surface depth on the evaluation views, against
+    /// a ground-truth mesh, when there is one. It follows the geometry where the mesh is
+    /// bounded by the masks and does not move.
+    #[serde(default)]
+    pub depth_error: Option<f64>,
     /// Number of Gaussians.
     pub gaussians: u64,
     /// Free-form label (for example the method or the evaluation split).
@@ -36,7 +41,11 @@ pub struct Timeline {
 }
 
 /// The CSV header [`Timeline::write_csv`] writes and [`Timeline::read_csv`] expects.
-pub const CSV_HEADER: &str = "iteration,train_seconds,psnr,ssim,chamfer,gaussians,label";
+pub const CSV_HEADER: &str =
+    "iteration,train_seconds,psnr,ssim,chamfer,depth_error,gaussians,label";
+
+/// The header of logs written before the depth error was recorded (still read).
+const CSV_HEADER_V1: &str = "iteration,train_seconds,psnr,ssim,chamfer,gaussians,label";
 
 fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n', '\r']) {
@@ -83,18 +92,20 @@ impl Timeline {
     }
 
     /// The CSV text: [`CSV_HEADER`], then one line per point; floats in Rust's shortest
-    /// round-trip form, a missing chamfer as an empty field, the label quoted when needed.
+    /// round-trip form, a missing chamfer or depth error as an empty field, the label quoted
+    /// when needed.
     pub fn to_csv(&self) -> String {
         let mut s = String::from(CSV_HEADER);
         s.push('\n');
         for p in &self.points {
             s.push_str(&format!(
-                "{},{},{},{},{},{},{}\n",
+                "{},{},{},{},{},{},{},{}\n",
                 p.iteration,
                 p.train_seconds,
                 p.psnr,
                 p.ssim,
                 p.chamfer.map(|c| c.to_string()).unwrap_or_default(),
+                p.depth_error.map(|c| c.to_string()).unwrap_or_default(),
                 p.gaussians,
                 csv_field(&p.label)
             ));
@@ -107,7 +118,8 @@ impl Timeline {
         write_atomic(path, self.to_csv().as_bytes())
     }
 
-    /// Reads a file written by [`Timeline::write_csv`]. Errors name the file and line.
+    /// Reads a file written by [`Timeline::write_csv`] (or by a version without the depth
+    /// error column). Errors name the file and line.
     pub fn read_csv(path: &Path) -> Result<Timeline> {
         let text = std::fs::read_to_string(path).map_err(|e| EvalError::io(path, e))?;
         let err = |line: usize, message: String| EvalError::Parse {
@@ -115,18 +127,22 @@ impl Timeline {
             message: format!("line {line}: {message}"),
         };
         let mut lines = text.lines().enumerate();
-        match lines.next() {
-            Some((_, h)) if h.trim_end() == CSV_HEADER => {}
+        let fields = match lines.next() {
+            Some((_, h)) if h.trim_end() == CSV_HEADER => 8,
+            Some((_, h)) if h.trim_end() == CSV_HEADER_V1 => 7,
             _ => return Err(err(1, format!("expected header `{CSV_HEADER}`"))),
-        }
+        };
         let mut points = Vec::new();
         for (k, line) in lines {
             if line.trim().is_empty() {
                 continue;
             }
             let f = split_csv(line).ok_or_else(|| err(k + 1, "unterminated quote".into()))?;
-            if f.len() != 7 {
-                return Err(err(k + 1, format!("expected 7 fields, found {}", f.len())));
+            if f.len() != fields {
+                return Err(err(
+                    k + 1,
+                    format!("expected {fields} fields, found {}", f.len()),
+                ));
             }
             let num = |i: usize, name: &str| -> Result<f64> {
                 f[i].trim()
@@ -138,18 +154,28 @@ impl Timeline {
                     .parse::<u64>()
                     .map_err(|e| err(k + 1, format!("{name} `{}`: {e}", f[i])))
             };
+            let optional = |i: usize, name: &str| -> Result<Option<f64>> {
+                if f[i].trim().is_empty() {
+                    Ok(None)
+                } else {
+                    num(i, name).map(Some)
+                }
+            };
+            // Without the depth error column the later fields sit one to the left.
+            let d = fields - 7;
             points.push(TimelinePoint {
                 iteration: int(0, "iteration")?,
                 train_seconds: num(1, "train_seconds")?,
                 psnr: num(2, "psnr")?,
                 ssim: num(3, "ssim")?,
-                chamfer: if f[4].trim().is_empty() {
-                    None
+                chamfer: optional(4, "chamfer")?,
+                depth_error: if d == 1 {
+                    optional(5, "depth_error")?
                 } else {
-                    Some(num(4, "chamfer")?)
+                    None
                 },
-                gaussians: int(5, "gaussians")?,
-                label: f[6].clone(),
+                gaussians: int(5 + d, "gaussians")?,
+                label: f[6 + d].clone(),
             });
         }
         Ok(Timeline { points })
@@ -157,6 +183,13 @@ impl Timeline {
 }
 
 static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+
+/// A panel of [`plot_png`] with a log axis: one optional value of each point.
+struct LogPanel {
+    caption: &'static str,
+    y_desc: &'static str,
+    get: fn(&TimelinePoint) -> Option<f64>,
+}
 
 fn ensure_font() -> std::result::Result<(), String> {
     static REGISTERED: std::sync::OnceLock<std::result::Result<(), String>> =
@@ -190,10 +223,10 @@ fn range_of(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
 /// Plot size in pixels.
 const PLOT_SIZE: (u32, u32) = (1400, 560);
 
-/// Draws PSNR against training time (left panel) and, when any point has a chamfer
-/// distance, chamfer against training time on a log axis (right panel), one line per
-/// series with a legend, and writes the PNG to `path` atomically. Errors when no series has
-/// a point.
+/// Draws PSNR against training time (left panel) and, when any point has them, the chamfer
+/// distance and the depth error against training time on log axes (further panels), one
+/// line per series with a legend, and writes the PNG to `path` atomically. Errors when no
+/// series has a point.
 pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
     let plot_err = |message: String| EvalError::Plot {
         path: path.to_path_buf(),
@@ -208,20 +241,30 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
         .ok_or_else(|| plot_err("no finite training time".into()))?;
     let t0 = t0.max(0.0).min(t1 - 1e-9);
     let psnr_range = range_of(all().map(|p| p.psnr)).unwrap_or((0.0, 1.0));
-    let chamfers: Vec<f64> = all()
-        .filter_map(|p| p.chamfer)
-        .filter(|c| c.is_finite() && *c > 0.0)
-        .collect();
+    let positive = |get: fn(&TimelinePoint) -> Option<f64>| {
+        all().filter_map(get).any(|c| c.is_finite() && c > 0.0)
+    };
+    let log_panels: Vec<LogPanel> = [
+        LogPanel {
+            caption: "Chamfer vs training time",
+            y_desc: "chamfer distance (log scale)",
+            get: |p| p.chamfer,
+        },
+        LogPanel {
+            caption: "Depth error vs training time",
+            y_desc: "median |depth error| (log scale)",
+            get: |p| p.depth_error,
+        },
+    ]
+    .into_iter()
+    .filter(|panel| positive(panel.get))
+    .collect();
     let (w, h) = PLOT_SIZE;
     let mut buf = vec![255u8; (w * h * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| plot_err(e.to_string()))?;
-        let panels: Vec<_> = if chamfers.is_empty() {
-            vec![root.clone()]
-        } else {
-            root.split_evenly((1, 2))
-        };
+        let panels = root.split_evenly((1, 1 + log_panels.len()));
         let colour = |k: usize| Palette99::pick(k).to_rgba();
         {
             let mut chart = ChartBuilder::on(&panels[0])
@@ -263,15 +306,19 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
                 .draw()
                 .map_err(|e| plot_err(e.to_string()))?;
         }
-        if !chamfers.is_empty() {
-            let lo = chamfers.iter().cloned().fold(f64::INFINITY, f64::min);
-            let hi = chamfers.iter().cloned().fold(0.0, f64::max);
-            // log10 of the chamfer on a linear axis, labelled with the chamfer itself: plotters
+        for (panel, area) in log_panels.iter().zip(&panels[1..]) {
+            let values: Vec<f64> = all()
+                .filter_map(panel.get)
+                .filter(|c| c.is_finite() && *c > 0.0)
+                .collect();
+            let lo = values.iter().cloned().fold(f64::INFINITY, f64::min);
+            let hi = values.iter().cloned().fold(0.0, f64::max);
+            // log10 of the value on a linear axis, labelled with the value itself: plotters
             // labels a log axis only at powers of ten, so a range inside one decade (every
             // method at 1.8e-3 to 4.6e-3) had no label at all.
             let (lo, hi) = ((lo / 1.25).log10(), (hi * 1.25).log10());
-            let mut chart = ChartBuilder::on(&panels[1])
-                .caption("Chamfer vs training time", ("sans-serif", 24))
+            let mut chart = ChartBuilder::on(area)
+                .caption(panel.caption, ("sans-serif", 24))
                 .margin(16)
                 .x_label_area_size(48)
                 .y_label_area_size(80)
@@ -280,7 +327,7 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
             chart
                 .configure_mesh()
                 .x_desc("training time (s)")
-                .y_desc("chamfer distance (log scale)")
+                .y_desc(panel.y_desc)
                 .y_label_formatter(&|v| format!("{:.1e}", 10f64.powf(*v)))
                 .label_style(("sans-serif", 16))
                 .draw()
@@ -290,7 +337,7 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
                 let pts: Vec<(f64, f64)> = t
                     .points
                     .iter()
-                    .filter_map(|p| Some((p.train_seconds, p.chamfer?)))
+                    .filter_map(|p| Some((p.train_seconds, (panel.get)(p)?)))
                     .filter(|(s, c)| s.is_finite() && c.is_finite() && *c > 0.0)
                     .map(|(s, c)| (s, c.log10()))
                     .collect();

@@ -4,6 +4,10 @@ use gtsr_eval::report::{
 use gtsr_eval::timeline::{Timeline, TimelinePoint, plot_png};
 
 fn timeline(label: &str, scale: f64, with_chamfer: bool) -> Timeline {
+    timeline_with(label, scale, with_chamfer, false)
+}
+
+fn timeline_with(label: &str, scale: f64, with_chamfer: bool, with_depth: bool) -> Timeline {
     let mut t = Timeline::new();
     for k in 0..8u64 {
         t.push(TimelinePoint {
@@ -12,6 +16,7 @@ fn timeline(label: &str, scale: f64, with_chamfer: bool) -> Timeline {
             psnr: 20.0 + 2.0 * (k as f64).sqrt() * scale,
             ssim: 0.8 + 0.01 * k as f64,
             chamfer: (with_chamfer && k % 2 == 0).then(|| 0.05 / (1.0 + k as f64)),
+            depth_error: (with_depth && k > 0).then(|| 0.02 / (k as f64).sqrt()),
             gaussians: 10_000 + 5_000 * k,
             label: label.to_string(),
         });
@@ -23,11 +28,31 @@ fn timeline(label: &str, scale: f64, with_chamfer: bool) -> Timeline {
 fn csv_round_trips_exactly() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("timeline.csv");
-    let mut t = timeline("gtsr, \"full\"", 1.0, true);
+    let mut t = timeline_with("gtsr, \"full\"", 1.0, true, true);
     t.points[3].psnr = 1.0 / 3.0;
     t.write_csv(&path).unwrap();
     let back = Timeline::read_csv(&path).unwrap();
     assert_eq!(back, t);
+    // Logs written before the depth error column still read, without it.
+    std::fs::write(
+        &path,
+        "iteration,train_seconds,psnr,ssim,chamfer,gaussians,label\n1,2,3,0.5,0.01,5,a\n",
+    )
+    .unwrap();
+    let old = Timeline::read_csv(&path).unwrap();
+    assert_eq!(old.points[0].chamfer, Some(0.01));
+    assert_eq!(old.points[0].depth_error, None);
+    assert_eq!(
+        (old.points[0].gaussians, old.points[0].label.as_str()),
+        (5, "a")
+    );
+    std::fs::write(
+        &path,
+        "iteration,train_seconds,psnr,ssim,chamfer,depth_error,gaussians,label\n1,2,3,0.5,,0.02,5\n",
+    )
+    .unwrap();
+    let e = Timeline::read_csv(&path).unwrap_err().to_string();
+    assert!(e.contains("expected 8 fields"), "{e}");
     // No temporary file left behind.
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     std::fs::write(
@@ -59,6 +84,17 @@ fn plots_are_written_as_png() {
     if let Ok(keep) = std::env::var("GTSR_EVAL_KEEP_PLOT") {
         std::fs::copy(&two, keep).unwrap();
     }
+    // A third panel when a series has depth errors.
+    let three = dir.path().join("three.png");
+    let c = timeline_with("c", 1.0, true, true);
+    plot_png(&three, &[("gtsr", &c)]).unwrap();
+    let img3 = image::open(&three).unwrap().to_rgb8();
+    let drawn = |x0: u32, x1: u32| {
+        img3.enumerate_pixels()
+            .filter(|(x, _, p)| *x >= x0 && *x < x1 && p.0 != [255, 255, 255])
+            .count()
+    };
+    assert!(drawn(0, 466) > 1000 && drawn(467, 933) > 1000 && drawn(934, 1400) > 1000);
     let one = dir.path().join("one.png");
     plot_png(&one, &[("pgsr", &b)]).unwrap();
     assert!(std::fs::metadata(&one).unwrap().len() > 1000);

@@ -236,7 +236,7 @@ impl Model {
                 .collect(),
         };
         Model {
-            components: self.components.clone(),
+            components: self.components,
             surface: detach(&self.surface),
             interior: self.interior.as_ref().map(detach),
             log_light: self

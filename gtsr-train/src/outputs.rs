@@ -123,7 +123,7 @@ pub struct Evaluation {
     /// only for the final (not coarse) evaluation.
     pub mesh_whole_gt: Option<MeshMetrics>,
     /// Rendered depth and normals of the test views against the ground-truth mesh, inside the
-    /// masks; only for the final evaluation ([`test_view_geometry`]).
+    /// masks ([`test_view_geometry`]).
     pub depth: Option<DepthMetrics>,
     /// The extracted mesh.
     pub extracted: Option<TriMesh>,
@@ -221,7 +221,9 @@ pub fn extract_mesh(
         let (lo, hi) = settings
             .bounds
             .context("the carving box comes from the masks")?;
-        let voxel = settings.carve_voxel.unwrap_or(masks.voxel) * if coarse { 2.0 } else { 1.0 };
+        // The full grid also in the in-run evaluations, so that their chamfer compares with
+        // the final one (the masks' own mesh is on this grid).
+        let voxel = settings.carve_voxel.unwrap_or(masks.voxel);
         let maps = host_views
             .iter()
             .enumerate()
@@ -397,7 +399,9 @@ fn fusion_depth(
 }
 
 /// Renders the test views (PSNR/SSIM of C_SH, and of C_PBR when present) and, with a
-/// ground-truth mesh, extracts a mesh and measures it.
+/// ground-truth mesh, extracts a mesh and measures it and the test views' surface depth.
+/// `coarse` (the in-run evaluations): the TSDF fusion on a coarser grid, and the chamfer
+/// against the seen ground truth only.
 pub fn evaluate(
     trainer: &Trainer,
     tests: &[ViewTensors],
@@ -448,7 +452,7 @@ pub fn evaluate(
         _ => (None, None, None),
     };
     let depth = match gt {
-        Some(gt) if !coarse => test_view_geometry(&model, tests, scene, gt, settings)?,
+        Some(gt) => test_view_geometry(&model, tests, scene, gt, settings)?,
         _ => None,
     };
     let avg = |x: f64, k: usize| if k > 0 { Some(x / k as f64) } else { None };

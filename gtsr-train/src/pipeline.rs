@@ -616,6 +616,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
                 psnr: e.psnr,
                 ssim: e.ssim,
                 chamfer: e.mesh.as_ref().map(|m| m.chamfer),
+                depth_error: e.depth.as_ref().map(|d| d.depth_median_abs),
                 gaussians: (ns + ni) as u64,
                 label: "test".into(),
             });
@@ -631,6 +632,10 @@ pub fn run(args: &Args) -> Result<Outcome> {
                         ", chamfer {:.5} (x1e3: {:.2})",
                         m.chamfer,
                         m.chamfer * 1e3
+                    )) + &e.depth.as_ref().map_or(String::new(), |d| format!(
+                        ", depth error x1e3 median {:.2} bias {:+.2}",
+                        d.depth_median_abs * 1e3,
+                        d.depth_mean_signed * 1e3
                     )),
                     train_seconds,
                     e.seconds
