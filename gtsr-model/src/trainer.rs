@@ -96,9 +96,11 @@ impl StepTimes {
     pub fn total(&self) -> Duration {
         self.forward + self.backward + self.gradients + self.adam + self.densify
     }
+}
 
-    /// Adds `other` phase by phase.
-    pub fn add(&mut self, other: &StepTimes) {
+/// Adds phase by phase.
+impl std::ops::AddAssign<&StepTimes> for StepTimes {
+    fn add_assign(&mut self, other: &StepTimes) {
         self.forward += other.forward;
         self.backward += other.backward;
         self.gradients += other.gradients;
@@ -522,18 +524,21 @@ impl Trainer {
         let mut passes = r.passes;
         let mut tile_splats = r.tile_splats;
         let mut terms: Vec<(&'static str, Tensor<1>)> = Vec::new();
+        // Adds a weighted term and times its computation.
+        let mut add = |name: &'static str, term: Tensor<1>| {
+            terms.push((name, term));
+            lap(name);
+        };
         let w = &cfg.weights;
-        terms.push((
+        add(
             "c_sh",
             losses::photometric(r.c_sh.clone(), view.rgb.clone(), w.lambda_l1),
-        ));
-        lap(terms.last().expect("pushed").0);
+        );
         if let Some(pbr) = &r.c_pbr {
-            terms.push((
+            add(
                 "c_pbr",
                 losses::photometric(pbr.clone(), view.rgb.clone(), w.lambda_l1),
-            ));
-            lap(terms.last().expect("pushed").0);
+            );
         }
         let coverage = r
             .geometry
@@ -545,34 +550,30 @@ impl Trainer {
             } else {
                 losses::mask_l1(&coverage, mask)
             };
-            terms.push(("mask", term * w.mask));
-            lap(terms.last().expect("pushed").0);
+            add("mask", term * w.mask);
         }
         if stage2 && w.opacity_entropy > 0.0 {
-            terms.push((
+            add(
                 "opacity_entropy",
                 losses::opacity_entropy(self.model.surface.req(ParamKind::Opacity))
                     * w.opacity_entropy,
-            ));
-            lap(terms.last().expect("pushed").0);
+            );
         }
         if w.flatten > 0.0 {
-            terms.push((
+            add(
                 "flatten",
                 losses::flatten(&self.model.surface.scales()) * w.flatten,
-            ));
-            lap(terms.last().expect("pushed").0);
+            );
         }
         if let Some(g) = &r.geometry {
             let valid = valid_pixels(&g.coverage, view.mask.as_ref());
             if c.single_view {
                 let l2 = self.lambda2(step);
-                terms.push((
+                add(
                     "single_view",
                     losses::single_view(&g.depth, &g.normal, &view.rays, &valid, &view.edge_weight)
                         * l2,
-                ));
-                lap(terms.last().expect("pushed").0);
+                );
             }
             if c.multi_view && !self.neighbours[vi].is_empty() {
                 let mut rng = step_rng(cfg.seed, step, RNG_NEIGHBOUR);
@@ -593,18 +594,16 @@ impl Trainer {
                     &nv.camera,
                     cfg.multi_view_max_error_px,
                 );
-                terms.push(("multi_view", mv.loss * w.multi_view));
-                lap(terms.last().expect("pushed").0);
+                add("multi_view", mv.loss * w.multi_view);
             }
             if let Some(spread) = &g.spread {
-                terms.push((
+                add(
                     "spread",
                     losses::layer_spread(spread, &g.depth, view.camera.fx, &valid) * w.spread,
-                ));
-                lap(terms.last().expect("pushed").0);
+                );
             }
             if let (Some(int), true) = (&self.model.interior, w.interior > 0.0) {
-                terms.push((
+                add(
                     "interior",
                     losses::interior_containment(
                         int.req(ParamKind::Means),
@@ -612,29 +611,26 @@ impl Trainer {
                         &g.depth,
                         &valid,
                     ) * w.interior,
-                ));
-                lap(terms.last().expect("pushed").0);
+                );
             }
             if c.smoothness {
                 if let Some(b) = &g.base {
-                    terms.push((
+                    add(
                         "smooth_base",
                         losses::edge_aware_smoothness(b, &view.smooth_wx, &view.smooth_wy)
                             * w.smooth_base,
-                    ));
-                    lap(terms.last().expect("pushed").0);
+                    );
                 }
                 if let Some(rough) = &g.roughness {
                     let [h, wd] = rough.dims();
-                    terms.push((
+                    add(
                         "smooth_roughness",
                         losses::edge_aware_smoothness(
                             &rough.clone().reshape([h, wd, 1]),
                             &view.smooth_wx,
                             &view.smooth_wy,
                         ) * w.smooth_roughness,
-                    ));
-                    lap(terms.last().expect("pushed").0);
+                    );
                 }
             }
         }

@@ -16,7 +16,7 @@ use burn::tensor::{DType, TensorData};
 use burn_ndarray::NdArrayTensor;
 
 use crate::config::SplatConfig;
-use crate::cpu::{self, ForwardState, HostGaussians};
+use crate::cpu::{self, ForwardState, HostBuffers};
 use crate::scalar::Real;
 
 /// The raw inputs of one splat op as backend primitives (also the layout of their gradients).
@@ -102,34 +102,10 @@ impl SplatBackend for NdArray {
 // ---------------------------------------------------------------------------------------------
 // NdArray kernels.
 
-/// Host copies of the inputs in one precision.
-#[derive(Debug)]
-struct HostInputs<F> {
-    means: Vec<F>,
-    quats: Vec<F>,
-    scales: Vec<F>,
-    opacities: Vec<F>,
-    features: Vec<F>,
-    xy_offsets: Vec<F>,
-}
-
-impl<F: Real> HostInputs<F> {
-    fn view(&self) -> HostGaussians<'_, F> {
-        HostGaussians {
-            means: &self.means,
-            quats: &self.quats,
-            scales: &self.scales,
-            opacities: &self.opacities,
-            features: &self.features,
-            xy_offsets: &self.xy_offsets,
-        }
-    }
-}
-
 /// Saved state of the NdArray forward pass.
 #[derive(Debug)]
 pub struct NdArraySplatSaved<F> {
-    inputs: HostInputs<F>,
+    inputs: HostBuffers<F>,
     config: SplatConfig,
     forward: ForwardState<F>,
     image_shape: [usize; 3],
@@ -175,8 +151,8 @@ fn to_nd<F: Real + burn::tensor::Element>(v: Vec<F>, shape: &[usize]) -> NdArray
     NdArrayTensor::from_data(TensorData::new(v, shape.to_vec()))
 }
 
-fn host_inputs<F: Real>(p: &SplatPrimitives<NdArray>) -> HostInputs<F> {
-    HostInputs {
+fn host_inputs<F: Real>(p: &SplatPrimitives<NdArray>) -> HostBuffers<F> {
+    HostBuffers {
         means: read_host(&p.means),
         quats: read_host(&p.quats),
         scales: read_host(&p.scales),
@@ -195,7 +171,7 @@ fn nd_forward<F: Real + burn::tensor::Element>(
     cpu::lap(cpu::Phase::HostCopies, start);
     let n = inputs.opacities.len();
     let c = config.background.len();
-    let out = cpu::forward(&inputs.view(), config);
+    let out = cpu::forward(&inputs.host(), config);
     let start = std::time::Instant::now();
     let image_shape = [
         config.camera.height as usize,
@@ -228,7 +204,7 @@ fn nd_backward<F: Real + burn::tensor::Element>(
     );
     let n = saved.inputs.opacities.len();
     let c = saved.config.background.len();
-    let g = cpu::backward(&saved.inputs.view(), &saved.config, &saved.forward, &grad);
+    let g = cpu::backward(&saved.inputs.host(), &saved.config, &saved.forward, &grad);
     let start = std::time::Instant::now();
     let out = [
         to_nd(g.means, &[n, 3]),

@@ -9,7 +9,7 @@ use rand::{RngExt, SeedableRng, rngs::StdRng};
 use crate::api::SplatInputs;
 use crate::camera::Camera;
 use crate::config::{AlphaCutoff, SplatConfig};
-use crate::cpu::HostGaussians;
+use crate::cpu::{HostBuffers, HostGaussians};
 
 /// Gaussians and a camera on the host, in `f64`.
 #[derive(Clone, Debug)]
@@ -57,10 +57,10 @@ impl HostScene {
         }
     }
 
-    /// The inputs rounded to f32, for the host kernels in f32 ([`HostScene32::host`]).
-    pub fn to_f32(&self) -> HostScene32 {
+    /// The inputs rounded to f32, for the host kernels in f32 ([`HostBuffers::host`]).
+    pub fn to_f32(&self) -> HostBuffers<f32> {
         let f = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
-        HostScene32 {
+        HostBuffers {
             means: f(&self.means),
             quats: f(&self.quats),
             scales: f(&self.scales),
@@ -109,37 +109,6 @@ impl HostScene {
         self.opacities.extend_from_slice(&other.opacities);
         self.features.extend_from_slice(&other.features);
         self.xy_offsets.extend_from_slice(&other.xy_offsets);
-    }
-}
-
-/// A [`HostScene`]'s inputs in f32 ([`HostScene::to_f32`]).
-#[derive(Clone, Debug)]
-pub struct HostScene32 {
-    /// `[N, 3]`
-    pub means: Vec<f32>,
-    /// `[N, 4]`
-    pub quats: Vec<f32>,
-    /// `[N, 3]`
-    pub scales: Vec<f32>,
-    /// `[N]`
-    pub opacities: Vec<f32>,
-    /// `[N, C]`
-    pub features: Vec<f32>,
-    /// `[N, 2]`
-    pub xy_offsets: Vec<f32>,
-}
-
-impl HostScene32 {
-    /// Host view for [`crate::cpu`].
-    pub fn host(&self) -> HostGaussians<'_, f32> {
-        HostGaussians {
-            means: &self.means,
-            quats: &self.quats,
-            scales: &self.scales,
-            opacities: &self.opacities,
-            features: &self.features,
-            xy_offsets: &self.xy_offsets,
-        }
     }
 }
 

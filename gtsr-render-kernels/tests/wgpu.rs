@@ -150,16 +150,9 @@ fn per_pixel_f32(scene: &HostScene, cutoff: AlphaCutoff, weights: &[f64]) -> [Ve
     let weights: Vec<f32> = weights.iter().map(|&w| w as f32).collect();
     let cfg = scene.config(cutoff);
     let out = cpu::forward_with(&host, &cfg, cpu::BlendPath::PerPixel);
-    let g = cpu::backward(&host, &cfg, &out.state, &weights);
-    [
-        g.means,
-        g.quats,
-        g.scales,
-        g.opacities,
-        g.features,
-        g.xy_offsets,
-    ]
-    .map(|v| v.iter().map(|&x| f64::from(x)).collect())
+    cpu::backward(&host, &cfg, &out.state, &weights)
+        .into_parts()
+        .map(|v| v.iter().map(|&x| f64::from(x)).collect())
 }
 
 /// wgpu f32 gradients against the CPU's f64 ones: within 1e-3, or (stiff cases, where f32

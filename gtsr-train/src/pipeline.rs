@@ -580,7 +580,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
         let r = trainer.step()?;
         train_seconds += t0.elapsed().as_secs_f64();
         let slot = &mut profile[usize::from(r.stage == 2)];
-        slot.0.add(&r.times);
+        slot.0 += &r.times;
         slot.1 += 1;
         bar.set_position(trainer.step as u64);
         bar.set_message(format!(

@@ -97,9 +97,10 @@ pub struct ForwardOutput<F> {
     pub state: ForwardState<F>,
 }
 
-/// Gradients of the raw inputs, laid out as the inputs.
+/// Owned host buffers laid out as the raw splat inputs: the inputs themselves (borrowed as
+/// [`HostGaussians`] by [`HostBuffers::host`]) or their gradients ([`HostGradients`]).
 #[derive(Debug, Clone)]
-pub struct HostGradients<F> {
+pub struct HostBuffers<F> {
     /// `[N, 3]`
     pub means: Vec<F>,
     /// `[N, 4]`
@@ -113,6 +114,35 @@ pub struct HostGradients<F> {
     /// `[N, 2]`
     pub xy_offsets: Vec<F>,
 }
+
+impl<F> HostBuffers<F> {
+    /// The buffers as kernel inputs.
+    pub fn host(&self) -> HostGaussians<'_, F> {
+        HostGaussians {
+            means: &self.means,
+            quats: &self.quats,
+            scales: &self.scales,
+            opacities: &self.opacities,
+            features: &self.features,
+            xy_offsets: &self.xy_offsets,
+        }
+    }
+
+    /// The six buffers in input order: means, quats, scales, opacities, features, offsets.
+    pub fn into_parts(self) -> [Vec<F>; 6] {
+        [
+            self.means,
+            self.quats,
+            self.scales,
+            self.opacities,
+            self.features,
+            self.xy_offsets,
+        ]
+    }
+}
+
+/// Gradients of the raw inputs, laid out as the inputs.
+pub type HostGradients<F> = HostBuffers<F>;
 
 /// Renders `g` with `cfg`. Shapes must be consistent (the Burn wrapper checks them). f32 blends
 /// on [`BlendPath::default_path`].

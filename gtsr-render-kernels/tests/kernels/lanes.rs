@@ -19,17 +19,7 @@ fn run(scene: &HostScene, path: BlendPath, weights: &[f64]) -> (Vec<f32>, HostGr
 }
 
 fn grads_flat(g: &HostGradients<f32>) -> Vec<f32> {
-    [
-        &g.means,
-        &g.quats,
-        &g.scales,
-        &g.opacities,
-        &g.features,
-        &g.xy_offsets,
-    ]
-    .iter()
-    .flat_map(|v| v.iter().copied())
-    .collect()
+    g.clone().into_parts().concat()
 }
 
 fn scenes() -> Vec<(String, HostScene)> {
