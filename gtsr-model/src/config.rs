@@ -379,6 +379,31 @@ pub struct DensifyConfig {
     pub max_surface: usize,
     /// Cap on the interior set.
     pub max_interior: usize,
+    /// PGSR's multi-view trim: every this many steps while densification runs (0: never, the
+    /// default; PGSR: every 1000 of 30000 steps), the surface Gaussians observed in fewer than
+    /// [`Self::trim_min_views`] training views are pruned, where observed means blended at some
+    /// pixel while the transmittance in front is above [`Self::trim_transmittance`]
+    /// ([`crate::Model::observed_surface`]). It brings the depth closer to the surface but
+    /// costs image quality on strongly scattering objects (`gtsr-model/README.md`).
+    #[serde(default)]
+    pub trim_every: usize,
+    /// Views in which a surface Gaussian must be observed to survive the trim.
+    #[serde(default = "default_trim_min_views")]
+    pub trim_min_views: usize,
+    /// Transmittance above which a splat counts as observed by the trim: 0.9, the front layers.
+    /// PGSR's 0.5 keeps the splats up to the median depth, but with a faint surface set the
+    /// median lies deep inside the object, and 0.5 spares the deep layers that bias the depth
+    /// (`gtsr-model/README.md`).
+    #[serde(default = "default_trim_transmittance")]
+    pub trim_transmittance: f64,
+}
+
+fn default_trim_min_views() -> usize {
+    2
+}
+
+fn default_trim_transmittance() -> f64 {
+    0.9
 }
 
 impl DensifyConfig {
@@ -391,6 +416,16 @@ impl DensifyConfig {
     pub fn resets_after(&self, done: usize) -> bool {
         self.opacity_reset_every > 0
             && done.is_multiple_of(self.opacity_reset_every)
+            && done < self.end
+    }
+
+    /// Whether the multi-view trim runs after the step that makes `done` steps in all: every
+    /// [`Self::trim_every`] steps from [`Self::start`] while densification runs (PGSR: every
+    /// 1000 of 30000 steps, before the end of densification).
+    pub fn trims_after(&self, done: usize) -> bool {
+        self.trim_every > 0
+            && done >= self.start
+            && done.is_multiple_of(self.trim_every)
             && done < self.end
     }
 }
@@ -407,6 +442,9 @@ impl Default for DensifyConfig {
             opacity_reset_every: 3000,
             max_surface: 200_000,
             max_interior: 50_000,
+            trim_every: 0,
+            trim_min_views: default_trim_min_views(),
+            trim_transmittance: default_trim_transmittance(),
         }
     }
 }
@@ -527,6 +565,12 @@ impl TrainConfig {
         if self.densify.every == 0 {
             bad.push("densify.every must be positive".into());
         }
+        let t = self.densify.trim_transmittance;
+        if !(t > 0.0 && t < 1.0) {
+            bad.push(format!(
+                "densify.trim_transmittance must be in (0, 1), got {t}"
+            ));
+        }
         for (name, v) in [
             ("init_radius", self.init_radius),
             ("pbr_gamma", self.pbr_gamma),
@@ -594,6 +638,31 @@ mod tests {
             ..d.clone()
         };
         assert!(!(1..=c.iterations).any(|s| never.resets_after(s)));
+    }
+
+    #[test]
+    fn trims_run_on_their_schedule_while_densification_runs() {
+        let mut d = TrainConfig::for_iterations(Components::FULL, 1500).densify;
+        assert!(!(1..=1500).any(|s| d.trims_after(s)), "off by default");
+        // PGSR's every 1000 of 30000 steps, while densification runs (to step 750 here).
+        d.trim_every = 50;
+        let trims: Vec<usize> = (1..=1500).filter(|s| d.trims_after(*s)).collect();
+        assert_eq!(trims.first(), Some(&50));
+        assert_eq!(trims.last(), Some(&700));
+        assert_eq!(trims.len(), 14);
+        // Configurations written before the trim existed read with it off.
+        let mut json =
+            serde_json::to_value(TrainConfig::for_iterations(Components::FULL, 10)).unwrap();
+        let obj = json["densify"].as_object_mut().unwrap();
+        obj.remove("trim_every");
+        obj.remove("trim_min_views");
+        obj.remove("trim_transmittance");
+        let back: TrainConfig = serde_json::from_value(json).unwrap();
+        assert_eq!(
+            (back.densify.trim_every, back.densify.trim_min_views),
+            (0, 2)
+        );
+        assert_eq!(back.densify.trim_transmittance, 0.9);
     }
 
     #[test]

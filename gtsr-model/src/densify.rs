@@ -29,6 +29,16 @@ impl DensifyStats {
         }
     }
 
+    /// The rows `keep` (the statistics of the Gaussians that survive a pruning).
+    pub fn select(&self, keep: &[usize]) -> DensifyStats {
+        let pick = |v: &[f32]| keep.iter().map(|&i| v[i]).collect();
+        DensifyStats {
+            grad_sum: pick(&self.grad_sum),
+            count: pick(&self.count),
+            max_radius: pick(&self.max_radius),
+        }
+    }
+
     /// Adds one step: `grad_px` `[N, 2]` row-major (`dL/d mean2d` in pixels), the screen radii,
     /// and the image width (3DGS measures the gradient in NDC: `px * W / 2`).
     pub fn add(&mut self, grad_px: &[f32], radii: &[f32], width: usize, height: usize) {

@@ -506,6 +506,31 @@ impl Model {
         Ok(depth_maps(out.image, out.alpha, rays, tiles))
     }
 
+    /// Per surface Gaussian, whether it is blended at some pixel of `camera` while the
+    /// transmittance in front of it is above `threshold` (the surface set alone with its plain
+    /// opacity, as the geometry pass blends it). At 0.5 this is PGSR's observation test: a
+    /// Gaussian that passes it in too few training views lies hidden behind the layers that
+    /// decide the depth, and PGSR prunes it ([`crate::config::DensifyConfig::trim_every`]).
+    /// Forward only, on the host kernels.
+    pub fn observed_surface(
+        &self,
+        camera: &Camera,
+        threshold: f64,
+    ) -> Result<Vec<bool>, ModelError> {
+        let set = &self.surface;
+        let means = set.req(ParamKind::Means).clone();
+        let inputs = SplatInputs {
+            features: layout::cols(&means, 0..1).zeros_like(),
+            means,
+            quats: set.req(ParamKind::Rotations).clone(),
+            scales: set.scales(),
+            opacities: set.opacities(),
+            xy_offsets: None,
+        };
+        let cfg = splat_config(camera, 1, self.blur_px2);
+        Ok(gtsr_render_kernels::render_crossing(inputs, &cfg, threshold)?.observed)
+    }
+
     /// Like [`Model::render_depth`], but each pixel takes the normal, plane and depth of the one
     /// surface splat at which the pixel's transmittance first falls to `threshold` (0.5: the
     /// median splat, as 2DGS's median depth) instead of their blend over every layer the ray

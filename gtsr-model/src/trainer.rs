@@ -40,6 +40,9 @@ pub struct Counters {
     /// written before it was counted).
     #[serde(default)]
     pub tile_splats: u64,
+    /// Surface Gaussians removed by the multi-view trim so far.
+    #[serde(default)]
+    pub trimmed: usize,
 }
 
 /// What one step did.
@@ -792,7 +795,7 @@ impl Trainer {
         }
         report.times.adam = t0.elapsed();
         let t0 = Instant::now();
-        report.densified = self.maybe_densify(step);
+        report.densified = self.maybe_densify(step)?;
         report.times.densify = t0.elapsed();
         report.times.kernels = kernel_times().since(&kernels0);
         report.counts = self.model.counts();
@@ -800,7 +803,37 @@ impl Trainer {
         Ok(report)
     }
 
-    fn maybe_densify(&mut self, step: usize) -> Option<(DensifyReport, DensifyReport)> {
+    /// PGSR's multi-view trim: prunes the surface Gaussians that fewer than `min_views` training
+    /// views observe ([`Model::observed_surface`] at the transmittance `threshold`; PGSR: 2 and
+    /// 0.5). Returns how many it removed.
+    pub fn trim_unobserved(
+        &mut self,
+        min_views: usize,
+        threshold: f64,
+    ) -> Result<usize, ModelError> {
+        let model = self.model.detached();
+        let mut seen = vec![0usize; model.surface.len()];
+        for view in &self.views {
+            let observed = model.observed_surface(&view.camera, threshold)?;
+            for (count, o) in seen.iter_mut().zip(observed) {
+                *count += usize::from(o);
+            }
+        }
+        let keep: Vec<usize> = (0..seen.len()).filter(|&i| seen[i] >= min_views).collect();
+        let removed = seen.len() - keep.len();
+        if removed > 0 {
+            let host = self.model.surface.to_host().reindex(&keep, None);
+            self.opt_surface.reindex(&keep, 0);
+            self.model.surface = host.to_device(&self.device);
+            self.stats_surface = self.stats_surface.select(&keep);
+        }
+        Ok(removed)
+    }
+
+    fn maybe_densify(
+        &mut self,
+        step: usize,
+    ) -> Result<Option<(DensifyReport, DensifyReport)>, ModelError> {
         let d = self.config.densify.clone();
         let s1 = step + 1;
         let mut out = None;
@@ -840,6 +873,10 @@ impl Trainer {
             self.counters.densifications += 1;
             out = Some((ds.report, rep_i));
         }
+        if d.trims_after(s1) {
+            self.counters.trimmed +=
+                self.trim_unobserved(d.trim_min_views, d.trim_transmittance)?;
+        }
         if d.resets_after(s1) {
             let mut host = self.model.surface.to_host();
             reset_opacity(&mut host, 0.01);
@@ -852,7 +889,7 @@ impl Trainer {
                 self.opt_interior.reset(ParamKind::Opacity);
             }
         }
-        out
+        Ok(out)
     }
 
     /// The device the run is on.

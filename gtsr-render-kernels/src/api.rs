@@ -277,6 +277,11 @@ pub struct CrossingOutput {
     pub found: Tensor<2>,
     /// `[H, W]`: accumulated alpha `1 - T_final` of the same render (as [`RenderOutput::alpha`]).
     pub alpha: Tensor<2>,
+    /// Per Gaussian: blended at one pixel at least while the transmittance in front of it was
+    /// above the threshold (at 0.5, PGSR's "observed" in this view). Counted over the training
+    /// views, it tells the Gaussians that decide some pixel from those always hidden behind
+    /// others, which PGSR prunes.
+    pub observed: Vec<bool>,
 }
 
 /// Forward only, not differentiable: per pixel, the features of the splat at which the
@@ -367,5 +372,6 @@ fn crossing_on_host<F: crate::scalar::Real + burn::tensor::Element>(
         features: Tensor::from_data(TensorData::new(out.features, [h, w, c]), (device, dtype)),
         found: Tensor::from_data(TensorData::new(out.found, [h, w]), (device, dtype)),
         alpha: Tensor::from_data(TensorData::new(alpha, [h, w]), (device, dtype)),
+        observed: out.observed,
     })
 }

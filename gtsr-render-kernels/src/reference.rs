@@ -196,24 +196,27 @@ pub fn render_reference(g: &HostGaussians<'_, f64>, cfg: &SplatConfig) -> Vec<f6
 
 /// Brute-force counterpart of [`crate::cpu::crossing_features`]: per pixel, the features of the
 /// Gaussian whose blend takes the transmittance to or below `threshold` (row-major `[H, W, C]`,
-/// 0 where it stays above) and the `[H, W]` 0/1 map of where it does.
+/// 0 where it stays above), the `[H, W]` 0/1 map of where it does, and per Gaussian whether it
+/// was blended at some pixel while the transmittance in front of it was above `threshold`.
 pub fn crossing_reference(
     g: &HostGaussians<'_, f64>,
     cfg: &SplatConfig,
     threshold: f64,
-) -> (Vec<f64>, Vec<f64>) {
+) -> (Vec<f64>, Vec<f64>, Vec<bool>) {
     let c = cfg.background.len();
     let list = depth_sorted(g, cfg);
     let (w, h) = (cfg.camera.width as usize, cfg.camera.height as usize);
     let mut feats = vec![0.0; w * h * c];
     let mut found = vec![0.0; w * h];
-    feats
+    let observed = feats
         .par_chunks_mut(c)
         .zip(found.par_iter_mut())
         .enumerate()
-        .for_each(|(pix, (px, hit))| {
+        .map(|(pix, (px, hit))| {
             let (x, y) = ((pix % w) as f64 + 0.5, (pix / w) as f64 + 0.5);
+            let mut seen = Vec::new();
             walk(&list, cfg.cutoff, x, y, |s, alpha, t| {
+                seen.push(s.index);
                 if t * (1.0 - alpha) > threshold {
                     return true;
                 }
@@ -221,6 +224,20 @@ pub fn crossing_reference(
                 *hit = 1.0;
                 false
             });
-        });
-    (feats, found)
+            seen
+        })
+        .fold(
+            || vec![false; g.len()],
+            |mut acc, seen| {
+                for i in seen {
+                    acc[i] = true;
+                }
+                acc
+            },
+        )
+        .reduce(
+            || vec![false; g.len()],
+            |a, b| a.iter().zip(&b).map(|(x, y)| *x || *y).collect(),
+        );
+    (feats, found, observed)
 }

@@ -608,6 +608,8 @@ struct Metrics {
     /// passes cost, beside their number.
     tile_splats: u64,
     tile_splats_per_pass: f64,
+    /// Surface Gaussians removed by the multi-view trim (`densify.trim_every`).
+    trimmed_surface: usize,
     test_psnr: f64,
     test_ssim: f64,
     test_psnr_masked: Option<f64>,
@@ -665,6 +667,7 @@ pub fn finish(
         tile_splats: trainer.counters.tile_splats,
         tile_splats_per_pass: trainer.counters.tile_splats as f64
             / trainer.counters.passes.max(1) as f64,
+        trimmed_surface: trainer.counters.trimmed,
         test_psnr: e.psnr,
         test_ssim: e.ssim,
         test_psnr_masked: e.psnr_masked,

@@ -107,6 +107,15 @@ struct RunState {
     train_seconds: f64,
 }
 
+/// The resolution recorded in a run's `config.json` (none for a bare training configuration,
+/// or a file that does not parse: [`resolve_config`] reports that).
+fn config_resolution(path: &Path) -> Option<u32> {
+    let text = std::fs::read_to_string(path).ok()?;
+    serde_json::from_str::<ResolvedConfig>(&text)
+        .ok()
+        .map(|r| r.resolution)
+}
+
 fn resolve_config(
     args: &Args,
     scene: &Scene,
@@ -342,8 +351,10 @@ pub fn run(args: &Args) -> Result<Outcome> {
         None => ensure_default_scene(&args.scene_cache)?,
     };
     let blender = data_dir.join("transforms_train.json").is_file();
+    // A run's own config.json also gives the resolution it trained at.
     let resolution = args
         .resolution
+        .or_else(|| args.config.as_deref().and_then(config_resolution))
         .unwrap_or(if args.data.is_none() { 64 } else { 128 });
     let opts = LoadOptions {
         downscale: Downscale::MaxSide(resolution),

@@ -90,6 +90,35 @@ fn trains_a_tiny_scene_and_writes_every_output() {
     let mesh = gtsr_data::ply::read_ply(&out.join("mesh.ply")).unwrap();
     assert!(!mesh.triangles.is_empty());
 
+    // The run's config.json alone (no --resolution, no --iterations) reproduces the run.
+    let again = tmp.path().join("again");
+    let o = gtsr_train(
+        &scene,
+        &again,
+        &[
+            "--config",
+            out.join("config.json").to_str().unwrap(),
+            "--eval-points",
+            "2",
+            "--checkpoint-every",
+            "0",
+        ],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let c2: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(again.join("config.json")).unwrap()).unwrap();
+    assert_eq!(c2["resolution"], 24, "{c2}");
+    assert_eq!(c2["train"], c["train"]);
+    let m2: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(again.join("metrics.json")).unwrap())
+            .unwrap();
+    for key in ["test_psnr", "test_ssim", "surface_gaussians", "mesh"] {
+        assert_eq!(
+            m2[key], m[key],
+            "{key} differs when the run is repeated from its config"
+        );
+    }
+
     // --resume on a finished run re-extracts and re-evaluates without training further.
     let o = gtsr_train(&scene, &out, &[&TINY_RUN[..], &["--resume"]].concat());
     assert!(o.status.success(), "{}", text(&o));

@@ -1,6 +1,7 @@
 //! A short run lowers the loss; every parameter receives gradient.
 
 use gtsr_model::config::Preset;
+use gtsr_model::gaussians::ParamKind;
 
 use crate::common::{device, small_config, tiny_scene, trainer};
 
@@ -120,4 +121,72 @@ fn detached_model_renders_the_same_and_records_no_graph() {
         .into_vec::<f32>()
         .unwrap();
     assert_eq!(a, b, "the detached render differs");
+}
+
+#[test]
+fn multi_view_trim_removes_exactly_the_gaussians_too_few_views_observe() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    let comps = Preset::Full.components().unwrap();
+    let mut t = trainer(&scene, small_config(comps, 30), &device);
+    // Opaque Gaussians, so that the ones deep inside the ball hide behind the front ones.
+    let mut host = t.model.surface.to_host();
+    for o in host.column_mut(ParamKind::Opacity).unwrap() {
+        *o = 3.0;
+    }
+    t.model.surface = host.to_device(&device);
+    let counts = |t: &gtsr_model::Trainer| {
+        t.views
+            .iter()
+            .map(|v| t.model.observed_surface(&v.camera, 0.5).unwrap())
+            .fold(vec![0usize; t.model.surface.len()], |mut acc, o| {
+                for (a, o) in acc.iter_mut().zip(o) {
+                    *a += usize::from(o);
+                }
+                acc
+            })
+    };
+    let views = counts(&t);
+    let before = views.len();
+    let expected = views.iter().filter(|&&v| v < 2).count();
+    assert!(
+        expected > 0 && expected < before,
+        "{expected} of {before} Gaussians are seen by fewer than two views"
+    );
+    let removed = t.trim_unobserved(2, 0.5).unwrap();
+    assert_eq!(removed, expected);
+    assert_eq!(t.model.surface.len(), before - expected);
+    // Removing splats only raises the transmittance in front of the others: every survivor
+    // passes the test again. Training goes on with the pruned set.
+    let after = counts(&t);
+    assert_eq!(after.len(), before - expected);
+    assert!(after.iter().all(|&v| v >= 2), "a survivor lost its views");
+    let r = t.step().unwrap();
+    assert!(!r.skipped && r.loss.is_finite());
+}
+
+#[test]
+fn scheduled_trim_runs_inside_the_densification_window_and_is_counted() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    let comps = Preset::Full.components().unwrap();
+    let mut config = small_config(comps, 30);
+    config.densify.trim_every = 10;
+    config.densify.end = 25;
+    let mut t = trainer(&scene, config, &device);
+    let mut trimmed_at = Vec::new();
+    for step in 1..=30 {
+        let before = t.counters.trimmed;
+        let r = t.step().unwrap();
+        assert!(!r.skipped && r.loss.is_finite(), "step {step}");
+        if t.counters.trimmed > before {
+            trimmed_at.push(step);
+        }
+        assert_eq!(r.counts.0, t.model.surface.len());
+    }
+    // Trims run after steps 10 and 20 only (not 30: densification has ended); the random start
+    // puts Gaussians behind others, so both remove some.
+    assert_eq!(trimmed_at, [10, 20], "trims after steps {trimmed_at:?}");
 }

@@ -244,6 +244,7 @@ fn rasterize_f32<F: Real>(
             t_final,
             n_contrib,
             crossing: Vec::new(),
+            observed: Vec::new(),
         },
         evals,
     )

@@ -170,6 +170,11 @@ pub struct CrossingOutput<F> {
     pub found: Vec<F>,
     /// Row-major `[H, W, C + 1]`: the ordinary render ([`ForwardOutput::image`]).
     pub image: Vec<F>,
+    /// Per Gaussian (input order): blended at one pixel at least while the transmittance in
+    /// front of it was above the threshold, i.e. among the splats that decide the pixel up to
+    /// the crossing (PGSR's observation count of a view, as a flag). False for Gaussians that
+    /// are culled, off screen, or always behind the crossing.
+    pub observed: Vec<bool>,
 }
 
 /// Forward only: per pixel the features of the splat at which the front-to-back transmittance
@@ -213,10 +218,19 @@ pub fn crossing_features<F: Real>(
                 frow[x] = F::one();
             }
         });
+    let state = &out.state;
+    let mut observed = vec![false; g.len()];
+    for (j, &i) in state.order.iter().enumerate() {
+        let [a, b] = bins.splat_ranges[j];
+        observed[i as usize] = bins.isects_of_splat[a as usize..b as usize]
+            .iter()
+            .any(|&slot| state.raster.observed[slot as usize] != 0);
+    }
     CrossingOutput {
         features,
         found,
         image: out.image,
+        observed,
     }
 }
 

@@ -37,6 +37,10 @@ pub(crate) struct RasterState<F> {
     /// list of the splat whose blend took the transmittance to or below the threshold; 0 where
     /// it stayed above. Empty otherwise.
     pub crossing: Vec<u32>,
+    /// With [`RasterCtx::crossing`]: per intersection (the order of [`Bins::packed`]), 1 when
+    /// the splat was blended at some pixel of that tile while the transmittance in front of it
+    /// was above the threshold (PGSR's "observed"), else 0. Empty otherwise.
+    pub observed: Vec<u8>,
 }
 
 /// The splat's exponent along one pixel row: `power(dx) = (ha * dx + lin) * dx + cst` with
@@ -167,6 +171,25 @@ fn rasterize_n<F: Real, const CH: usize>(
     } else {
         (0..n_tiles).map(|_| &mut [][..]).collect()
     };
+    let mut observed = vec![
+        0u8;
+        if ctx.crossing.is_some() {
+            bins.packed.len()
+        } else {
+            0
+        }
+    ];
+    let mut observed_chunks: Vec<&mut [u8]> = Vec::with_capacity(n_tiles);
+    if ctx.crossing.is_some() {
+        let mut rest = &mut observed[..];
+        for [start, end] in &bins.tile_ranges {
+            let (head, tail) = rest.split_at_mut((end - start) as usize);
+            observed_chunks.push(head);
+            rest = tail;
+        }
+    } else {
+        observed_chunks.extend((0..n_tiles).map(|_| &mut [][..]));
+    }
     let t_min = F::c(TRANSMITTANCE_MIN);
 
     let evals: u64 = tile_buf
@@ -174,8 +197,9 @@ fn rasterize_n<F: Real, const CH: usize>(
         .zip(t_final.par_chunks_mut(TILE_PIXELS))
         .zip(n_contrib.par_chunks_mut(TILE_PIXELS))
         .zip(crossing_chunks.par_iter_mut())
+        .zip(observed_chunks.par_iter_mut())
         .enumerate()
-        .map(|(t, (((img, trans), nc), cross))| {
+        .map(|(t, ((((img, trans), nc), cross), obs))| {
             let (ox, oy, ex, ey) = tile_bounds(t, ctx);
             // Bit x of alive[y] is set while pixel (x, y) of the tile still accumulates.
             let mut alive = [0u32; TILE_SIZE as usize];
@@ -230,10 +254,12 @@ fn rasterize_n<F: Real, const CH: usize>(
                         trans[p] = next_t;
                         nc[p] = k as u32 + 1;
                         if let Some(threshold) = ctx.crossing
-                            && next_t <= threshold
                             && tp > threshold
                         {
-                            cross[p] = k as u32 + 1;
+                            obs[k] = 1;
+                            if next_t <= threshold {
+                                cross[p] = k as u32 + 1;
+                            }
                         }
                     }
                 }
@@ -251,12 +277,14 @@ fn rasterize_n<F: Real, const CH: usize>(
 
     let image = tiles_to_rows(&tile_buf, ctx, stride);
     drop(crossing_chunks);
+    drop(observed_chunks);
     (
         image,
         RasterState {
             t_final,
             n_contrib,
             crossing,
+            observed,
         },
         evals,
     )

@@ -28,6 +28,7 @@ fn crossing_matches_brute_force_in_f64() {
         let scene = random_scene(300 + i as u64, &spec(n));
         for cutoff in [AlphaCutoff::Hard, AlphaCutoff::Smooth] {
             let cfg = scene.config(cutoff);
+            let mut seen_before = n;
             for threshold in [0.2, 0.5, 0.9] {
                 let out = render_crossing(
                     scene.inputs(&Device::ndarray(), DType::F64),
@@ -35,7 +36,23 @@ fn crossing_matches_brute_force_in_f64() {
                     threshold,
                 )
                 .unwrap();
-                let (want_f, want_found) = crossing_reference(&scene.host(), &cfg, threshold);
+                let (want_f, want_found, want_obs) =
+                    crossing_reference(&scene.host(), &cfg, threshold);
+                assert_eq!(
+                    out.observed, want_obs,
+                    "scene {i} ({cutoff:?}, T = {threshold}): observed Gaussians differ"
+                );
+                let seen = want_obs.iter().filter(|o| **o).count();
+                if n == 200 {
+                    // Some Gaussians are blended in front of the crossing, some only behind it.
+                    assert!(seen > 0 && seen < n, "scene {i}: {seen} of {n} observed");
+                }
+                // A higher threshold observes a subset.
+                assert!(
+                    seen <= seen_before,
+                    "scene {i}: {seen} observed after {seen_before}"
+                );
+                seen_before = seen;
                 let got_f = host(out.features);
                 let got_found = host(out.found);
                 assert_eq!(
@@ -68,13 +85,14 @@ fn crossing_matches_brute_force_in_f64() {
 }
 
 /// Two flat discs facing the camera on its axis, at depths 3.5 and 4.5, whose single feature
-/// is their depth.
+/// is their depth. The back disc is the smaller, so that wherever it is blended the front one
+/// is near its peak opacity.
 fn two_discs(front: f64, back: f64) -> (SplatInputs, SplatConfig) {
     let device = Device::ndarray();
     let scene = HostScene {
         means: vec![0.0, 0.0, 3.5, 0.0, 0.0, 4.5],
         quats: vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
-        scales: vec![0.8, 0.8, 1e-4, 0.8, 0.8, 1e-4],
+        scales: vec![0.8, 0.8, 1e-4, 0.25, 0.25, 1e-4],
         opacities: vec![front, back],
         features: vec![3.5, 4.5],
         xy_offsets: vec![0.0; 4],
@@ -112,6 +130,17 @@ fn crossing_takes_the_layer_where_transmittance_falls() {
     assert_eq!(
         centre(render_crossing(inputs, &cfg, 0.8).unwrap().features),
         3.5
+    );
+    // The opaque front layer hides the back one from the median; a faint one does not.
+    let (inputs, cfg) = two_discs(0.9, 0.9);
+    assert_eq!(
+        render_crossing(inputs, &cfg, 0.5).unwrap().observed,
+        [true, false]
+    );
+    let (inputs, cfg) = two_discs(0.3, 0.9);
+    assert_eq!(
+        render_crossing(inputs, &cfg, 0.5).unwrap().observed,
+        [true, true]
     );
     // Two faint layers never reach 0.5 (T = 0.7 * 0.8): nothing found.
     let (inputs, cfg) = two_discs(0.3, 0.2);
