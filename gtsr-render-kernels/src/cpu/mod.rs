@@ -352,36 +352,8 @@ pub fn backward<F: Real>(
     let slot = SLOT_FIXED + c;
     let bins = &state.bins;
 
-    // Per splat (depth order, in parallel): sum its intersection rows in a fixed order (hence
-    // deterministic), then the projection VJP.
-    let mut splat_features = vec![F::zero(); state.order.len() * c];
-    let per_splat: Vec<project::GaussGrad<F>> = state
-        .order
-        .par_iter()
-        .zip(bins.splat_ranges.par_iter())
-        .zip(splat_features.par_chunks_mut(c))
-        .with_min_len(256)
-        .map(|((&i, &[s0, s1]), feat)| {
-            let mut acc = [F::zero(); SLOT_FIXED];
-            for &k in &bins.isects_of_splat[s0 as usize..s1 as usize] {
-                let row = &slots[k as usize * slot..(k as usize + 1) * slot];
-                for (a, &r) in acc.iter_mut().zip(&row[..SLOT_FIXED]) {
-                    *a = *a + r;
-                }
-                for (a, &r) in feat.iter_mut().zip(&row[SLOT_FIXED..]) {
-                    *a = *a + r;
-                }
-            }
-            project::project_vjp(
-                &g.get(i as usize),
-                &cam,
-                [acc[0], acc[1]],
-                [acc[2], acc[3], acc[4]],
-                acc[5],
-            )
-        })
-        .collect();
-    // Scatter to the input layout, in parallel over Gaussians through the inverse order.
+    // Per Gaussian (in parallel, in the input layout): sum its splat's intersection rows in a
+    // fixed order (hence deterministic), then the projection VJP, written in place.
     let mut position = vec![u32::MAX; n];
     for (j, &i) in state.order.iter().enumerate() {
         position[i as usize] = j as u32;
@@ -402,18 +374,34 @@ pub fn backward<F: Real>(
         .zip(out.features.par_chunks_mut(c))
         .zip(out.xy_offsets.par_chunks_mut(2))
         .zip(position.par_iter())
-        .with_min_len(1024)
-        .for_each(|((((((dm, dq), ds), dop), df), dxy), &j)| {
+        .enumerate()
+        .with_min_len(256)
+        .for_each(|(i, ((((((dm, dq), ds), dop), df), dxy), &j))| {
             if j == u32::MAX {
                 return; // culled: zero gradients
             }
-            let gg = &per_splat[j as usize];
-            let feat = &splat_features[j as usize * c..(j as usize + 1) * c];
+            let [s0, s1] = bins.splat_ranges[j as usize];
+            let mut acc = [F::zero(); SLOT_FIXED];
+            for &k in &bins.isects_of_splat[s0 as usize..s1 as usize] {
+                let row = &slots[k as usize * slot..(k as usize + 1) * slot];
+                for (a, &r) in acc.iter_mut().zip(&row[..SLOT_FIXED]) {
+                    *a = *a + r;
+                }
+                for (a, &r) in df.iter_mut().zip(&row[SLOT_FIXED..]) {
+                    *a = *a + r;
+                }
+            }
+            let gg = project::project_vjp(
+                &g.get(i),
+                &cam,
+                [acc[0], acc[1]],
+                [acc[2], acc[3], acc[4]],
+                acc[5],
+            );
             dm.copy_from_slice(&gg.mean);
             dq.copy_from_slice(&gg.quat);
             ds.copy_from_slice(&gg.scale);
             *dop = gg.opacity;
-            df.copy_from_slice(feat);
             dxy.copy_from_slice(&gg.xy_offset);
         });
     lap(Phase::Gather, start);
