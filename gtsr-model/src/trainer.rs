@@ -751,8 +751,9 @@ impl Trainer {
             report.times.kernels = kernel_times().since(&kernels0);
             return Ok(report);
         }
-        // Densification statistics.
+        // Densification statistics: read back only while a densification can still use them.
         let (w, h) = view.size();
+        let densifies_later = step < self.config.densify.end;
         for (offsets, radii, stats) in [
             (
                 &r.surface_offsets,
@@ -765,7 +766,7 @@ impl Trainer {
                 &mut self.stats_interior,
             ),
         ] {
-            if let Some(g) = offsets.as_ref().and_then(|o| o.grad(&grads)) {
+            if densifies_later && let Some(g) = offsets.as_ref().and_then(|o| o.grad(&grads)) {
                 stats.add(&host_vec(g), radii, w, h);
             }
         }
