@@ -804,14 +804,9 @@ impl Trainer {
         Ok(report)
     }
 
-    /// PGSR's multi-view trim: prunes the surface Gaussians that fewer than `min_views` training
-    /// views observe ([`Model::observed_surface`] at the transmittance `threshold`; PGSR: 2 and
-    /// 0.5). Returns how many it removed.
-    pub fn trim_unobserved(
-        &mut self,
-        min_views: usize,
-        threshold: f64,
-    ) -> Result<usize, ModelError> {
+    /// Per surface Gaussian, in how many training views it is observed
+    /// ([`Model::observed_surface`] at the transmittance `threshold`).
+    pub fn observation_counts(&self, threshold: f64) -> Result<Vec<usize>, ModelError> {
         let model = self.model.detached();
         let mut seen = vec![0usize; model.surface.len()];
         for view in &self.views {
@@ -820,6 +815,18 @@ impl Trainer {
                 *count += usize::from(o);
             }
         }
+        Ok(seen)
+    }
+
+    /// PGSR's multi-view trim: prunes the surface Gaussians that fewer than `min_views` training
+    /// views observe ([`Self::observation_counts`] at the transmittance `threshold`; PGSR: 2
+    /// and 0.5). Returns how many it removed.
+    pub fn trim_unobserved(
+        &mut self,
+        min_views: usize,
+        threshold: f64,
+    ) -> Result<usize, ModelError> {
+        let seen = self.observation_counts(threshold)?;
         let keep: Vec<usize> = (0..seen.len()).filter(|&i| seen[i] >= min_views).collect();
         let removed = seen.len() - keep.len();
         if removed > 0 {

@@ -136,17 +136,7 @@ fn multi_view_trim_removes_exactly_the_gaussians_too_few_views_observe() {
         *o = 3.0;
     }
     t.model.surface = host.to_device(&device);
-    let counts = |t: &gtsr_model::Trainer| {
-        t.views
-            .iter()
-            .map(|v| t.model.observed_surface(&v.camera, 0.5).unwrap())
-            .fold(vec![0usize; t.model.surface.len()], |mut acc, o| {
-                for (a, o) in acc.iter_mut().zip(o) {
-                    *a += usize::from(o);
-                }
-                acc
-            })
-    };
+    let counts = |t: &gtsr_model::Trainer| t.observation_counts(0.5).unwrap();
     let views = counts(&t);
     let before = views.len();
     let expected = views.iter().filter(|&&v| v < 2).count();

@@ -179,17 +179,11 @@ fn rasterize_n<F: Real, const CH: usize>(
             0
         }
     ];
-    let mut observed_chunks: Vec<&mut [u8]> = Vec::with_capacity(n_tiles);
-    if ctx.crossing.is_some() {
-        let mut rest = &mut observed[..];
-        for [start, end] in &bins.tile_ranges {
-            let (head, tail) = rest.split_at_mut((end - start) as usize);
-            observed_chunks.push(head);
-            rest = tail;
-        }
+    let mut observed_chunks: Vec<&mut [u8]> = if ctx.crossing.is_some() {
+        per_tile(&mut observed, &bins.tile_ranges, 1)
     } else {
-        observed_chunks.extend((0..n_tiles).map(|_| &mut [][..]));
-    }
+        (0..n_tiles).map(|_| &mut [][..]).collect()
+    };
     let t_min = F::c(TRANSMITTANCE_MIN);
 
     let evals: u64 = tile_buf
