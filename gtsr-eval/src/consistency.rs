@@ -22,7 +22,7 @@ use rayon::prelude::*;
 use crate::error::{EvalError, Result};
 
 /// Settings of [`filter_consistent`].
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ConsistencySettings {
     /// How many views, those with the nearest optical axes, check each view.
     pub neighbours: usize,

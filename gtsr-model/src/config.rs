@@ -1,27 +1,93 @@
 //! Every setting of the model and its training: components (what to leave out), loss weights,
 //! learning rates, schedule and densification. Serde-serialisable so a run can record and
-//! reload the resolved configuration.
+//! reload the resolved configuration, and [`clap::Args`] so a front end can flatten the same
+//! structs into its command line.
+//!
+//! On the command line every setting's argument id is its path in a run's `config.json`
+//! (`train.weights.mask` for `--mask-weight`), so a front end can start from defaults that
+//! depend on the scene or from a saved configuration and overlay only what the user gave
+//! (`gtsr-train` does this with [`clap::ArgMatches::value_source`]). The defaults shown by
+//! `--help` are those of [`TrainConfig::for_iterations`]; where a default depends on the run
+//! (the schedule, the caps, the preset's components) the help says so instead.
 
+use clap::ArgAction;
 use serde::{Deserialize, Serialize};
 
+/// Parses a finite number `>= 0`.
+pub fn parse_non_negative(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|e| format!("{e}"))?;
+    if v.is_finite() && v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("must be a finite number >= 0, got {s}"))
+    }
+}
+
+/// Parses a finite number `> 0`.
+pub fn parse_positive(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|e| format!("{e}"))?;
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("must be a finite number > 0, got {s}"))
+    }
+}
+
+/// Parses a number in `[0, 1]`.
+pub fn parse_unit(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|e| format!("{e}"))?;
+    if (0.0..=1.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("must be in [0, 1], got {s}"))
+    }
+}
+
+/// Parses a number in the open interval `(0, 1)`.
+pub fn parse_open_unit(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|e| format!("{e}"))?;
+    if v > 0.0 && v < 1.0 {
+        Ok(v)
+    } else {
+        Err(format!("must be in (0, 1), got {s}"))
+    }
+}
+
+/// Parses a count `>= 1`.
+pub fn parse_count(s: &str) -> Result<usize, String> {
+    let v: usize = s.parse().map_err(|e| format!("{e}"))?;
+    if v >= 1 {
+        Ok(v)
+    } else {
+        Err(format!("must be at least 1, got {s}"))
+    }
+}
+
 /// Which parts of the method are switched on. A disabled component allocates no parameters
-/// and runs no raster pass.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+/// and runs no raster pass. On the command line each overrides what the preset chose.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::Args)]
 #[serde(deny_unknown_fields)]
 pub struct Components {
     /// The interior Gaussian set (scattering colour; C_SH blends it with the surface set).
+    #[arg(long = "interior", id = "train.components.interior", value_name = "BOOL", action = ArgAction::Set, default_value_t = true, hide_default_value = true)]
     pub interior: bool,
     /// Surface opacity times the Schlick Fresnel term in C_SH.
+    #[arg(long = "fresnel", id = "train.components.fresnel", value_name = "BOOL", action = ArgAction::Set, default_value_t = true, hide_default_value = true)]
     pub fresnel: bool,
     /// The deferred C_PBR render (material maps, scattering map, co-located light).
+    #[arg(long = "pbr", id = "train.components.pbr", value_name = "BOOL", action = ArgAction::Set, default_value_t = true, hide_default_value = true)]
     pub pbr: bool,
     /// PGSR's multi-view geometric term (renders a neighbour view's depth every step).
+    #[arg(long = "multi-view", id = "train.components.multi_view", value_name = "BOOL", action = ArgAction::Set, default_value_t = true, hide_default_value = true)]
     pub multi_view: bool,
     /// PGSR's single-view depth-normal term.
+    #[arg(long = "single-view", id = "train.components.single_view", value_name = "BOOL", action = ArgAction::Set, default_value_t = true, hide_default_value = true)]
     pub single_view: bool,
     /// Edge-aware smoothness of the roughness and base-colour maps (needs `pbr`).
+    #[arg(long = "smoothness", id = "train.components.smoothness", value_name = "BOOL", action = ArgAction::Set, default_value_t = true, hide_default_value = true)]
     pub smoothness: bool,
     /// Largest spherical-harmonics degree (0 to 3); grown during training.
+    #[arg(long = "sh-degree", id = "train.components.sh_degree", value_name = "N", default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=3))]
     pub sh_degree: u32,
 }
 
@@ -55,7 +121,7 @@ impl Components {
 }
 
 /// Named component sets: the paper's model, its ablations, a PGSR-like baseline, and `auto`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Preset {
     /// Everything on (the paper's method).
@@ -68,7 +134,7 @@ pub enum Preset {
     NoInterior,
     /// PGSR-like baseline: surface set only, no PBR, no Fresnel, PGSR's geometric terms.
     Pgsr,
-    /// Decide from the scene (see [`crate::config::auto_components`]).
+    /// The full model less what the scene shows it does not need ([`auto_components`]).
     Auto,
 }
 
@@ -250,27 +316,38 @@ pub fn auto_components(e: &SceneEvidence) -> (Components, Vec<Decision>) {
     (c, d)
 }
 
-/// Loss weights (names follow the paper).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// Loss weights (names follow the paper). The terms that are not in the paper and were not
+/// kept on by default are set in a configuration file only (`--config`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
 #[serde(deny_unknown_fields)]
 pub struct LossWeights {
     /// lambda1: weight of L1 in `lambda1 L1 + (1 - lambda1) (1 - SSIM)`, on each render.
+    #[arg(long = "l1-weight", id = "train.weights.lambda_l1", value_name = "W", default_value_t = LossWeights::default().lambda_l1, value_parser = parse_unit)]
     pub lambda_l1: f64,
     /// lambda2 at the start of stage 2 (rises linearly to `single_view_end`).
+    #[arg(long = "single-view-weight-start", id = "train.weights.single_view_start", value_name = "W", default_value_t = LossWeights::default().single_view_start, value_parser = parse_non_negative)]
     pub single_view_start: f64,
     /// lambda2 at the end of training.
+    #[arg(long = "single-view-weight-end", id = "train.weights.single_view_end", value_name = "W", default_value_t = LossWeights::default().single_view_end, value_parser = parse_non_negative)]
     pub single_view_end: f64,
     /// lambda3: multi-view geometric term.
+    #[arg(long = "multi-view-weight", id = "train.weights.multi_view", value_name = "W", default_value_t = LossWeights::default().multi_view, value_parser = parse_non_negative)]
     pub multi_view: f64,
     /// lambda4: interior containment.
+    #[arg(long = "interior-weight", id = "train.weights.interior", value_name = "W", default_value_t = LossWeights::default().interior, value_parser = parse_non_negative)]
     pub interior: f64,
     /// lambda5: roughness smoothness.
+    #[arg(long = "roughness-smoothness-weight", id = "train.weights.smooth_roughness", value_name = "W", default_value_t = LossWeights::default().smooth_roughness, value_parser = parse_non_negative)]
     pub smooth_roughness: f64,
     /// lambda6: base-colour smoothness.
+    #[arg(long = "base-smoothness-weight", id = "train.weights.smooth_base", value_name = "W", default_value_t = LossWeights::default().smooth_base, value_parser = parse_non_negative)]
     pub smooth_base: f64,
     /// Flattening: mean smallest scale of the surface set.
+    #[arg(long = "flatten-weight", id = "train.weights.flatten", value_name = "W", default_value_t = LossWeights::default().flatten, value_parser = parse_non_negative)]
     pub flatten: f64,
-    /// L1 between the surface set's alpha and the mask (when the data has masks).
+    /// L1 between the surface set's alpha and the mask (when the data has masks). Default: 1
+    /// when every training view has a mask, 0.1 otherwise.
+    #[arg(long = "mask-weight", id = "train.weights.mask", value_name = "W", default_value_t = LossWeights::default().mask, value_parser = parse_non_negative, hide_default_value = true)]
     pub mask: f64,
     /// Layer spread (not in the paper; 0, off, by default): the mean over the valid pixels of
     /// the blend-weighted standard deviation of the depths at which the surface splats cross
@@ -278,17 +355,20 @@ pub struct LossWeights {
     /// distortion in another form: it asks the surface set for one layer per pixel instead of
     /// a stack of faint ones.
     #[serde(default)]
+    #[arg(skip)]
     pub spread: f64,
     /// Opacity binarisation of the surface set in stage 2 (not in the paper): the mean binary
     /// entropy of the surface opacities ([`crate::losses::opacity_entropy`]), which pushes
     /// each towards 0 or 1, so the surface ends one opaque layer rather than a stack of faint
     /// ones whose blended depth lies behind the surface.
     #[serde(default)]
+    #[arg(skip)]
     pub opacity_entropy: f64,
     /// In stage 2 the mask term counts only missing coverage inside the mask
     /// ([`crate::losses::mask_deficit`]), not coverage spilling past it, which pulls the
     /// surface Gaussians inward (not in the paper; off by default).
     #[serde(default)]
+    #[arg(skip)]
     pub mask_deficit_only: bool,
 }
 
@@ -312,30 +392,41 @@ impl Default for LossWeights {
 }
 
 /// Adam learning rates per parameter (PGSR/3DGS values; positions scale with the scene).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
 #[serde(deny_unknown_fields)]
 pub struct LearningRates {
     /// Position rate at step 0, times the scene extent.
+    #[arg(long = "lr-position-start", id = "train.lr.position_start", value_name = "RATE", default_value_t = LearningRates::default().position_start, value_parser = parse_non_negative)]
     pub position_start: f64,
     /// Position rate at the last step, times the scene extent (exponential decay between).
+    ///
     /// A tenth of the start rather than 3DGS's hundredth, so that stage 2's geometric terms
     /// can still move the surface out to where the depth says it is.
+    #[arg(long = "lr-position-end", id = "train.lr.position_end", value_name = "RATE", default_value_t = LearningRates::default().position_end, value_parser = parse_non_negative)]
     pub position_end: f64,
     /// SH DC coefficients.
+    #[arg(long = "lr-sh-dc", id = "train.lr.sh_dc", value_name = "RATE", default_value_t = LearningRates::default().sh_dc, value_parser = parse_non_negative)]
     pub sh_dc: f64,
     /// Higher SH coefficients.
+    #[arg(long = "lr-sh-rest", id = "train.lr.sh_rest", value_name = "RATE", default_value_t = LearningRates::default().sh_rest, value_parser = parse_non_negative)]
     pub sh_rest: f64,
     /// Opacity logits.
+    #[arg(long = "lr-opacity", id = "train.lr.opacity", value_name = "RATE", default_value_t = LearningRates::default().opacity, value_parser = parse_non_negative)]
     pub opacity: f64,
     /// Log-scales.
+    #[arg(long = "lr-scale", id = "train.lr.scale", value_name = "RATE", default_value_t = LearningRates::default().scale, value_parser = parse_non_negative)]
     pub scale: f64,
     /// Quaternions.
+    #[arg(long = "lr-rotation", id = "train.lr.rotation", value_name = "RATE", default_value_t = LearningRates::default().rotation, value_parser = parse_non_negative)]
     pub rotation: f64,
     /// Base colour logits.
+    #[arg(long = "lr-base-colour", id = "train.lr.base_colour", value_name = "RATE", default_value_t = LearningRates::default().base_colour, value_parser = parse_non_negative)]
     pub base_colour: f64,
     /// Roughness logits.
+    #[arg(long = "lr-roughness", id = "train.lr.roughness", value_name = "RATE", default_value_t = LearningRates::default().roughness, value_parser = parse_non_negative)]
     pub roughness: f64,
     /// Log light intensity.
+    #[arg(long = "lr-light", id = "train.lr.light", value_name = "RATE", default_value_t = LearningRates::default().light, value_parser = parse_non_negative)]
     pub light: f64,
 }
 
@@ -356,45 +447,64 @@ impl Default for LearningRates {
     }
 }
 
-/// Densification, pruning and opacity reset (applied to each set separately).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// Densification, pruning and opacity reset (applied to each set separately). The schedule's
+/// defaults scale with the run's length as PGSR's 30k-step one ([`TrainConfig::for_iterations`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
 #[serde(deny_unknown_fields)]
 pub struct DensifyConfig {
-    /// First step that densifies.
+    /// First step that densifies. Default: 1/60 of the run.
+    #[arg(long = "densify-start", id = "train.densify.start", value_name = "STEP", default_value_t = DensifyConfig::default().start, value_parser = clap::value_parser!(usize), hide_default_value = true)]
     pub start: usize,
-    /// Last step that densifies (fraction of the run is common: set by the caller).
+    /// Last step that densifies. Default: half the run.
+    #[arg(long = "densify-end", id = "train.densify.end", value_name = "STEP", default_value_t = DensifyConfig::default().end, value_parser = clap::value_parser!(usize), hide_default_value = true)]
     pub end: usize,
-    /// Densify every this many steps.
+    /// Densify every this many steps. Default: 1/300 of the run, at least 10.
+    #[arg(long = "densify-every", id = "train.densify.every", value_name = "STEPS", default_value_t = DensifyConfig::default().every, value_parser = parse_count, hide_default_value = true)]
     pub every: usize,
     /// Mean screen-space gradient threshold, in NDC units as 3DGS (`|dL/d mean2d| * W / 2`).
+    #[arg(long = "densify-grad-threshold", id = "train.densify.grad_threshold", value_name = "G", default_value_t = DensifyConfig::default().grad_threshold, value_parser = parse_non_negative)]
     pub grad_threshold: f64,
     /// Gaussians larger than this fraction of the scene extent are split, smaller ones cloned.
+    #[arg(long = "percent-dense", id = "train.densify.percent_dense", value_name = "F", default_value_t = DensifyConfig::default().percent_dense, value_parser = parse_non_negative)]
     pub percent_dense: f64,
     /// Prune below this opacity.
+    #[arg(long = "prune-opacity", id = "train.densify.min_opacity", value_name = "A", default_value_t = DensifyConfig::default().min_opacity, value_parser = parse_unit)]
     pub min_opacity: f64,
     /// Reset opacities to at most 0.01 every this many steps (0: never), while densification
-    /// still runs (see [`DensifyConfig::resets_after`]).
+    /// still runs. Default: a tenth of the run.
+    ///
+    /// See [`DensifyConfig::resets_after`].
+    #[arg(long = "opacity-reset-every", id = "train.densify.opacity_reset_every", value_name = "STEPS", default_value_t = DensifyConfig::default().opacity_reset_every, value_parser = clap::value_parser!(usize), hide_default_value = true)]
     pub opacity_reset_every: usize,
-    /// Cap on the surface set (densification stops growing it past this).
+    /// Cap on the surface set (densification stops growing it past this). Default: three per
+    /// pixel of a view (10,000 to 65,536).
+    #[arg(long = "max-surface", id = "train.densify.max_surface", value_name = "N", default_value_t = DensifyConfig::default().max_surface, value_parser = parse_count, hide_default_value = true)]
     pub max_surface: usize,
-    /// Cap on the interior set.
+    /// Cap on the interior set. Default: one per pixel of a view (4,000 to 32,768).
+    #[arg(long = "max-interior", id = "train.densify.max_interior", value_name = "N", default_value_t = DensifyConfig::default().max_interior, value_parser = parse_count, hide_default_value = true)]
     pub max_interior: usize,
-    /// PGSR's multi-view trim: every this many steps while densification runs (0: never, the
-    /// default; PGSR: every 1000 of 30000 steps), the surface Gaussians observed in fewer than
+    /// PGSR's multi-view trim every this many steps while densification runs (0: never):
+    /// prunes the surface Gaussians that too few training views observe.
+    ///
+    /// PGSR trims every 1000 of 30000 steps. The surface Gaussians observed in fewer than
     /// [`Self::trim_min_views`] training views are pruned, where observed means blended at some
     /// pixel while the transmittance in front is above [`Self::trim_transmittance`]
     /// ([`crate::Model::observed_surface`]). It brings the depth closer to the surface but
     /// costs image quality on strongly scattering objects (`gtsr-model/README.md`).
     #[serde(default)]
+    #[arg(long = "trim-every", id = "train.densify.trim_every", value_name = "STEPS", default_value_t = DensifyConfig::default().trim_every, value_parser = clap::value_parser!(usize))]
     pub trim_every: usize,
     /// Views in which a surface Gaussian must be observed to survive the trim.
     #[serde(default = "default_trim_min_views")]
+    #[arg(long = "trim-min-views", id = "train.densify.trim_min_views", value_name = "N", default_value_t = DensifyConfig::default().trim_min_views, value_parser = parse_count)]
     pub trim_min_views: usize,
-    /// Transmittance above which a splat counts as observed by the trim: 0.9, the front layers.
+    /// Transmittance above which a splat counts as observed by the trim (the front layers).
+    ///
     /// PGSR's 0.5 keeps the splats up to the median depth, but with a faint surface set the
     /// median lies deep inside the object, and 0.5 spares the deep layers that bias the depth
     /// (`gtsr-model/README.md`).
     #[serde(default = "default_trim_transmittance")]
+    #[arg(long = "trim-transmittance", id = "train.densify.trim_transmittance", value_name = "T", default_value_t = DensifyConfig::default().trim_transmittance, value_parser = parse_open_unit)]
     pub trim_transmittance: f64,
 }
 
@@ -450,7 +560,7 @@ impl Default for DensifyConfig {
 }
 
 /// How the surface set starts.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Init {
     /// Uniform random points in a ball (the paper: COLMAP fails on textureless objects).
@@ -461,53 +571,80 @@ pub enum Init {
     HullSurface,
 }
 
+/// The largest default cap on the surface set ([`TrainConfig::for_views`]).
+pub const MAX_SURFACE: usize = 65_536;
+/// The largest default cap on the interior set ([`TrainConfig::for_views`]).
+pub const MAX_INTERIOR: usize = 32_768;
+
 /// Everything that defines a training run.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
 #[serde(deny_unknown_fields)]
 pub struct TrainConfig {
     /// Components in use (already resolved from a preset).
+    #[command(flatten, next_help_heading = "Components (default: from --preset)")]
     pub components: Components,
     /// Total steps.
+    #[arg(skip)]
     pub iterations: usize,
     /// First step of stage 2 (interior set and geometric terms); before it only the surface
-    /// set is trained, photometrically.
+    /// set is trained, photometrically. Default: 7/30 of the run.
+    #[arg(long = "stage2-start", id = "train.stage2_start", value_name = "STEP", default_value_t = 0, value_parser = clap::value_parser!(usize), hide_default_value = true, help_heading = "Training")]
     pub stage2_start: usize,
-    /// Add one SH degree every this many steps.
+    /// Add one SH degree every this many steps. Default: 1/30 of the run.
+    #[arg(long = "sh-increase-every", id = "train.sh_increase_every", value_name = "STEPS", default_value_t = 1, value_parser = parse_count, hide_default_value = true, help_heading = "Training")]
     pub sh_increase_every: usize,
     /// Loss weights.
+    #[command(flatten, next_help_heading = "Loss weights")]
     pub weights: LossWeights,
     /// Learning rates.
+    #[command(flatten, next_help_heading = "Learning rates")]
     pub lr: LearningRates,
     /// Densification.
+    #[command(flatten, next_help_heading = "Densification")]
     pub densify: DensifyConfig,
-    /// Surface initialisation.
+    /// Surface initialisation. Default: mask-carved when every training view has a mask,
+    /// random (the paper) otherwise.
+    #[arg(long = "init", id = "train.init", value_name = "INIT", value_enum, default_value_t = Init::Random, hide_default_value = true, help_heading = "Training")]
     pub init: Init,
-    /// Number of initial surface Gaussians.
+    /// Number of initial surface Gaussians. Default: one per pixel of a view (2,000 to 20,000).
+    #[arg(long = "init-surface", id = "train.init_surface", value_name = "N", default_value_t = 1, value_parser = parse_count, hide_default_value = true, help_heading = "Training")]
     pub init_surface: usize,
-    /// Number of interior Gaussians added at stage 2.
+    /// Number of interior Gaussians added at stage 2. Default: one per two pixels of a view
+    /// (1,000 to 10,000).
+    #[arg(long = "init-interior", id = "train.init_interior", value_name = "N", default_value_t = 1, value_parser = parse_count, hide_default_value = true, help_heading = "Training")]
     pub init_interior: usize,
     /// Radius of the initial ball (scene units; the data loaders normalise scenes).
+    #[arg(long = "init-radius", id = "train.init_radius", value_name = "R", default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).init_radius, value_parser = parse_positive, help_heading = "Training")]
     pub init_radius: f64,
     /// gamma: weight of the diffuse term in C_PBR.
+    #[arg(long = "pbr-gamma", id = "train.pbr_gamma", value_name = "G", default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).pbr_gamma, value_parser = parse_non_negative, help_heading = "Training")]
     pub pbr_gamma: f64,
     /// Schlick F0.
+    #[arg(long = "f0", id = "train.f0", value_name = "F0", default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).f0, value_parser = parse_unit, help_heading = "Training")]
     pub f0: f64,
     /// Lower clamp of roughness in the shading (keeps GGX finite).
+    #[arg(long = "min-roughness", id = "train.min_roughness", value_name = "R", default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).min_roughness, value_parser = parse_unit, help_heading = "Training")]
     pub min_roughness: f64,
     /// Encode C_PBR with the sRGB transfer curve before comparing with sRGB images.
+    #[arg(long = "pbr-srgb-output", id = "train.pbr_srgb_output", value_name = "BOOL", action = ArgAction::Set, default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).pbr_srgb_output, help_heading = "Training")]
     pub pbr_srgb_output: bool,
     /// Largest angle between a view and its multi-view neighbour, degrees.
+    #[arg(long = "neighbour-max-angle", id = "train.neighbour_max_angle_deg", value_name = "DEG", default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).neighbour_max_angle_deg, value_parser = parse_positive, help_heading = "Training")]
     pub neighbour_max_angle_deg: f64,
     /// Multi-view: pixels whose forward-backward reprojection error exceeds this (pixels)
     /// are left out.
+    #[arg(long = "multi-view-max-error", id = "train.multi_view_max_error_px", value_name = "PX", default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).multi_view_max_error_px, value_parser = parse_positive, help_heading = "Training")]
     pub multi_view_max_error_px: f64,
     /// Seed of every random choice (initialisation, view order, densification).
+    #[arg(long = "seed", id = "train.seed", value_name = "SEED", default_value_t = 0, value_parser = clap::value_parser!(u64), help_heading = "Training")]
     pub seed: u64,
-    /// Screen-space blur of the splats, pixels^2. Default: the pixel box's 1/12
-    /// (`gtsr_render_kernels::PIXEL_BOX_BLUR_PX2`); 3DGS's 0.3 (`BLUR_PX2`, what a config
+    /// Screen-space blur of the splats, pixels^2. Default: the pixel box's 1/12.
+    ///
+    /// `gtsr_render_kernels::PIXEL_BOX_BLUR_PX2`. 3DGS's 0.3 (`BLUR_PX2`, what a config
     /// without this field was trained with) makes the silhouettes spill past the masks, and
     /// the fit pulls the surface set about a pixel inside the object.
     #[serde(default = "legacy_blur_px2")]
+    #[arg(long = "blur", id = "train.blur_px2", value_name = "PX2", default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).blur_px2, value_parser = parse_non_negative, hide_default_value = true, help_heading = "Training")]
     pub blur_px2: f64,
 }
 
@@ -519,21 +656,14 @@ fn legacy_blur_px2() -> f64 {
 impl TrainConfig {
     /// Defaults for `iterations` steps, with the schedule scaled as PGSR's 30k-step one.
     pub fn for_iterations(components: Components, iterations: usize) -> TrainConfig {
-        let frac = |f: f64| ((iterations as f64) * f).round() as usize;
-        TrainConfig {
+        let mut c = TrainConfig {
             components,
             iterations,
-            stage2_start: frac(7000.0 / 30000.0),
-            sh_increase_every: frac(1000.0 / 30000.0).max(1),
+            stage2_start: 0,
+            sh_increase_every: 1,
             weights: LossWeights::default(),
             lr: LearningRates::default(),
-            densify: DensifyConfig {
-                start: frac(500.0 / 30000.0),
-                end: frac(0.5),
-                every: frac(100.0 / 30000.0).max(10),
-                opacity_reset_every: frac(3000.0 / 30000.0),
-                ..DensifyConfig::default()
-            },
+            densify: DensifyConfig::default(),
             init: Init::Random,
             init_surface: 10_000,
             init_interior: 5_000,
@@ -546,7 +676,50 @@ impl TrainConfig {
             multi_view_max_error_px: 1.0,
             seed: 0,
             blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
+        };
+        c.set_schedule(iterations);
+        c
+    }
+
+    /// The CPU-sized defaults for a scene whose views have `pixels` pixels each, `masked` when
+    /// every training view has a mask: [`Self::for_iterations`] with the set sizes scaled to
+    /// the images and, with masks, the surface set started inside them and the mask term
+    /// weighed as much as the images.
+    ///
+    /// The caps are about 3 surface and 1 interior Gaussian per pixel of one view (64x64:
+    /// 12k + 4k; 128x128: 49k + 16k), at most 64k + 32k: a stage-2 step's cost grows with the
+    /// Gaussians. With the paper's random start and mask weight 0.1 the surface set stayed a
+    /// smooth blob over the holes of a knot, which the Fresnel weighting hides from C_SH.
+    pub fn for_views(
+        components: Components,
+        iterations: usize,
+        pixels: usize,
+        masked: bool,
+    ) -> TrainConfig {
+        let mut c = TrainConfig::for_iterations(components, iterations);
+        c.init_surface = pixels.clamp(2_000, 20_000);
+        c.init_interior = (pixels / 2).clamp(1_000, 10_000);
+        c.densify.max_surface = (3 * pixels).clamp(10_000, MAX_SURFACE);
+        c.densify.max_interior = pixels.clamp(4_000, MAX_INTERIOR);
+        if masked {
+            c.init = Init::MaskCarved;
+            c.weights.mask = 1.0;
         }
+        c
+    }
+
+    /// Lays the schedule out for `iterations` steps as PGSR's 30k-step one: stage 2 from 7/30
+    /// of the run, an SH degree every 1/30, densification from 1/60 to half the run every 1/300
+    /// (at least 10 steps), an opacity reset every tenth. Every other setting is kept.
+    pub fn set_schedule(&mut self, iterations: usize) {
+        let frac = |f: f64| ((iterations as f64) * f).round() as usize;
+        self.iterations = iterations;
+        self.stage2_start = frac(7000.0 / 30000.0);
+        self.sh_increase_every = frac(1000.0 / 30000.0).max(1);
+        self.densify.start = frac(500.0 / 30000.0);
+        self.densify.end = frac(0.5);
+        self.densify.every = frac(100.0 / 30000.0).max(10);
+        self.densify.opacity_reset_every = frac(3000.0 / 30000.0);
     }
 
     /// Checks the configuration, returning every problem in words.

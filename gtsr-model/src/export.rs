@@ -3,16 +3,36 @@
 //! a `gtsr_set` property (0 surface, 1 interior). Values are the raw parameters as 3DGS stores
 //! them (logit opacity, log scale, unnormalised quaternion `w x y z`, SH with `f_rest`
 //! channel-major).
+//!
+//! The splats are written in the dataset's own frame: a scene normalised at load time
+//! ([`gtsr_data::Normalisation`], a uniform scale and a shift) is mapped back, so the file
+//! lines up with the input cameras and points.
 
 use std::path::Path;
+
+use gtsr_data::Normalisation;
 
 use crate::checkpoint::write_atomic;
 use crate::error::ModelError;
 use crate::gaussians::{HostSet, ParamKind};
 use crate::model::Model;
 
-/// Writes `model`'s sets to `path` (atomically). Returns the number of splats written.
-pub fn write_splat_ply(model: &Model, path: &Path) -> Result<usize, ModelError> {
+/// Writes `model`'s sets to `path` (atomically), mapped from the model's frame to the dataset's
+/// by `to_world` ([`Normalisation::IDENTITY`] when the model was trained in the dataset's frame).
+/// Returns the number of splats written.
+pub fn write_splat_ply(
+    model: &Model,
+    path: &Path,
+    to_world: &Normalisation,
+) -> Result<usize, ModelError> {
+    if !(to_world.radius.is_finite() && to_world.radius > 0.0 && to_world.centre.is_finite()) {
+        return Err(ModelError::Data(format!(
+            "{}: the scene normalisation (centre {}, radius {}) cannot be inverted",
+            path.display(),
+            to_world.centre,
+            to_world.radius
+        )));
+    }
     let mut sets = vec![(0.0f32, model.surface.to_host())];
     if let Some(int) = &model.interior {
         sets.push((1.0, int.to_host()));
@@ -39,13 +59,21 @@ pub fn write_splat_ply(model: &Model, path: &Path) -> Result<usize, ModelError> 
     header += "end_header\n";
     let mut out = header.into_bytes();
     for (flag, set) in &sets {
-        write_rows(&mut out, set, k, *flag)?;
+        write_rows(&mut out, set, k, *flag, to_world)?;
     }
     write_atomic(path, &out)?;
     Ok(n)
 }
 
-fn write_rows(out: &mut Vec<u8>, set: &HostSet, k: usize, flag: f32) -> Result<(), ModelError> {
+fn write_rows(
+    out: &mut Vec<u8>,
+    set: &HostSet,
+    k: usize,
+    flag: f32,
+    to_world: &Normalisation,
+) -> Result<(), ModelError> {
+    // A similarity scales every axis alike: log-scales shift by ln(radius), rotations stay.
+    let log_radius = to_world.radius.ln();
     let col = |kind: ParamKind| set.column(kind);
     let (means, _) =
         col(ParamKind::Means).ok_or_else(|| ModelError::Data("set without means".into()))?;
@@ -59,8 +87,9 @@ fn write_rows(out: &mut Vec<u8>, set: &HostSet, k: usize, flag: f32) -> Result<(
     let rest = col(ParamKind::ShRest);
     let mut push = |v: f32| out.extend_from_slice(&v.to_le_bytes());
     for i in 0..set.n {
+        let world = to_world.to_world(glam::Vec3::from_slice(&means[3 * i..3 * i + 3]));
         for a in 0..3 {
-            push(means[3 * i + a]);
+            push(world[a]);
         }
         for _ in 0..3 {
             push(0.0);
@@ -76,7 +105,7 @@ fn write_rows(out: &mut Vec<u8>, set: &HostSet, k: usize, flag: f32) -> Result<(
         }
         push(op[i]);
         for a in 0..3 {
-            push(ls[3 * i + a]);
+            push(ls[3 * i + a] + log_radius);
         }
         for a in 0..4 {
             push(rot[4 * i + a]);

@@ -11,12 +11,20 @@ mod pipeline;
 
 use std::path::PathBuf;
 
-use clap::{Parser, ValueEnum};
+use clap::{CommandFactory, FromArgMatches, Parser, ValueEnum};
+use gtsr_eval::MeshConfig;
+use gtsr_model::config::{Preset, TrainConfig};
 
 /// Reconstruct the surface of a translucent object from posed images (GTSR).
+///
+/// Every training and mesh setting below is also a field of the run's `config.json`; `--config`
+/// reads one back, and the flags given beside it override its fields.
 #[derive(Parser, Debug, Clone)]
-#[command(version, about)]
+#[command(version, about, long_about = None, max_term_width = 100, disable_help_flag = true, allow_negative_numbers = true)]
 pub struct Args {
+    /// Print help.
+    #[arg(short = 'h', long = "help", action = clap::ArgAction::HelpShort)]
+    pub help: Option<bool>,
     /// Dataset folder (Blender/NeRF `transforms_*.json` or COLMAP). Default: the built-in
     /// synthetic scene, generated into `--scene-cache` on first use.
     #[arg(long)]
@@ -30,134 +38,27 @@ pub struct Args {
     /// Compute backend.
     #[arg(long, value_enum, default_value_t = Backend::Ndarray)]
     pub backend: Backend,
-    /// Training steps.
-    #[arg(long)]
-    pub iterations: Option<usize>,
-    /// Longest image side after downscaling (pixels).
-    #[arg(long)]
+    /// Training steps. Default: 3000 (1500 on the built-in scene).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    pub iterations: Option<u64>,
+    /// Longest image side after downscaling (pixels). Default: 128 (64 on the built-in scene).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(8..))]
     pub resolution: Option<u32>,
-    /// Component preset: full, no-pbr, no-fresnel, no-interior, pgsr, auto.
-    #[arg(long, default_value = "full")]
-    pub preset: String,
-    /// A JSON file with every training setting (as written to `config.json`); the switches
-    /// below and `--iterations` / `--seed` override it.
+    /// Components: `full` (the paper's model), the ablations `no-pbr`, `no-fresnel` and
+    /// `no-interior`, `pgsr` (surface set, PGSR's terms), or `auto` (the full model less what
+    /// the scene shows it does not need; the run's first lines say what).
+    #[arg(long, value_enum, default_value_t = Preset::Auto)]
+    pub preset: Preset,
+    /// A run's `config.json` (or a bare training configuration): every setting from it, the
+    /// flags given beside it override.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Leave out the interior set.
-    #[arg(long)]
-    pub no_interior: bool,
-    /// Leave out the Fresnel weighting.
-    #[arg(long)]
-    pub no_fresnel: bool,
-    /// Leave out C_PBR (and material smoothness).
-    #[arg(long)]
-    pub no_pbr: bool,
-    /// Leave out the multi-view geometric term.
-    #[arg(long)]
-    pub no_multi_view: bool,
-    /// Leave out the single-view depth-normal term.
-    #[arg(long)]
-    pub no_single_view: bool,
-    /// Largest SH degree (0-3).
-    #[arg(long)]
-    pub sh_degree: Option<u32>,
-    /// Initialisation: random (the paper), mask-carved (inside the masks' hull) or hull-surface
-    /// (on its boundary).
-    #[arg(long)]
-    pub init: Option<String>,
-    /// Weight of the surface opacities' binarisation in stage 2 (gtsr-model's
-    /// `weights.opacity_entropy`; 0: off).
-    #[arg(long)]
-    pub opacity_entropy: Option<f64>,
-    /// In stage 2 the mask term counts only missing coverage inside the masks (gtsr-model's
-    /// `weights.mask_deficit_only`).
-    #[arg(long)]
-    pub mask_deficit_only: bool,
-    /// Seed of every random choice.
-    #[arg(long)]
-    pub seed: Option<u64>,
     /// Continue from `--out/checkpoint.safetensors`.
     #[arg(long)]
     pub resume: bool,
     /// Evaluations (test PSNR/SSIM, mesh chamfer) along the run for the error-against-time log.
     #[arg(long, default_value_t = 10)]
     pub eval_points: usize,
-    /// How the mesh is extracted. `carve` (with a mask on every view): the masks at the
-    /// dataset's own resolution bound the object with sub-pixel placement, and the rendered
-    /// depth carves inside that bound where `--carve-views` views agree (gtsr-eval's `carve`).
-    /// `tsdf`: TSDF fusion of the rendered depth (with the masks' hull when there are masks).
-    /// Scenes without masks always use `tsdf`.
-    #[arg(long, value_enum, default_value_t = Fusion::Carve)]
-    pub fusion: Fusion,
-    /// Carving: the depth views that must each put a point in front of their rendered surface.
-    /// (1 to 16.)
-    #[arg(long, default_value_t = 3)]
-    pub carve_views: usize,
-    /// Carving: how far in front, in that view's training-pixel footprints.
-    #[arg(long, default_value_t = 3.0, allow_negative_numbers = true)]
-    pub carve_margin: f32,
-    /// Carving: the least share of the views that put a point in front of their surface among
-    /// those that put it in front or near it (the rest see it hidden and do not count).
-    #[arg(long, default_value_t = 0.5)]
-    pub carve_free_ratio: f32,
-    /// Carving: the grid spacing (scene units); default: 0.75 of the masks' pixel footprint
-    /// at the object (dataset resolution).
-    #[arg(long)]
-    pub carve_voxel: Option<f32>,
-    /// TSDF voxel size (scene units); default: the scene radius / 256.
-    #[arg(long)]
-    pub voxel: Option<f32>,
-    /// TSDF truncation (scene units); default: the larger of 0.75 times the radius of the mesh
-    /// box and 6 training-pixel footprints at the object.
-    #[arg(long)]
-    pub truncation: Option<f32>,
-    /// TSDF truncation in training-pixel footprints (the median over the training views at the
-    /// mesh box's centre): the same share of a pixel at every resolution.
-    #[arg(long, conflicts_with = "truncation")]
-    pub truncation_footprints: Option<f32>,
-    /// Longest image side of the depth maps fused into the mesh (the trained Gaussians are
-    /// rendered again at this size, with the dataset's masks at this size). Default: the training
-    /// resolution; at most the dataset's own size.
-    #[arg(long)]
-    pub mesh_resolution: Option<u32>,
-    /// Fuse the depth maps alone: without this, when every view has a mask, the TSDF keeps the
-    /// masks' visual hull too and the surface never leaves a silhouette (see gtsr-eval's
-    /// `TsdfVolume::with_silhouette_carving`). With this, pixels outside the masks cast no
-    /// votes at all (depth is fused where the render has it, as PGSR and 2DGS do): shows what
-    /// the rendered depth alone gives.
-    #[arg(long)]
-    pub no_silhouette_carving: bool,
-    /// Fuse the masks alone, no rendered depth: the visual hull on the fusion grid. The
-    /// baseline that says what the rendered depth adds to the mesh.
-    #[arg(long, conflicts_with = "no_silhouette_carving")]
-    pub silhouettes_only: bool,
-    /// Fuse, per pixel, the depth of the one surface splat at which the transmittance falls to
-    /// this value (0.5: the median depth of 2DGS), instead of the blended unbiased depth of
-    /// PGSR; the test-view depth metrics then measure this depth. In (0, 1).
-    #[arg(long)]
-    pub depth_crossing: Option<f64>,
-    /// With carving, where no depth was fused inside the masks' hull keep the hull's own
-    /// (sub-voxel) distance instead of -truncation (gtsr-eval's
-    /// `TsdfVolume::with_hull_inside_distance`).
-    #[arg(long, conflicts_with = "no_silhouette_carving")]
-    pub hull_inside_distance: bool,
-    /// Replace each fused depth sample that lies less than this many pixel footprints behind
-    /// the masks' hull (or in front of it) by the hull's depth: only the depth of concavities
-    /// that no silhouette sees is fused (gtsr-eval's `tsdf::snap_to_hull`). Needs masks and
-    /// silhouette carving. Off by default.
-    #[arg(long, allow_negative_numbers = true, conflicts_with_all = ["no_silhouette_carving", "silhouettes_only"])]
-    pub snap_to_hull: Option<f32>,
-    /// Keep a fused depth sample only where at least this many of its neighbouring training
-    /// views' depth maps agree with it (multi-view consistency, as MVS systems filter their
-    /// depth maps; gtsr-eval's `consistency`). Off by default.
-    #[arg(long)]
-    pub depth_consistency: Option<usize>,
-    /// The neighbouring views (nearest optical axes) that check each view's depth.
-    #[arg(long, default_value_t = 8)]
-    pub consistency_neighbours: usize,
-    /// The consistency tolerance, in pixel footprints.
-    #[arg(long, default_value_t = 1.0)]
-    pub consistency_footprints: f32,
     /// Time every step by phase (kernels, Burn ops, Adam, densification) and print the mean
     /// per stage at the end (also written to `profile.md` in `--out`).
     #[arg(long)]
@@ -165,16 +66,32 @@ pub struct Args {
     /// Save a checkpoint every this many steps (0: only at the end or on Ctrl-C).
     #[arg(long, default_value_t = 500)]
     pub checkpoint_every: usize,
+    /// Mesh extraction.
+    #[command(flatten, next_help_heading = "Mesh extraction")]
+    pub mesh: MeshConfig,
+    /// Training.
+    #[command(flatten, next_help_heading = "Training")]
+    pub train: TrainConfig,
+    /// The ids of the settings given on the command line (paths in `config.json`): only these
+    /// override the scene's defaults or `--config`.
+    #[arg(skip)]
+    pub given: Vec<String>,
 }
 
-/// Mesh extraction.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Fusion {
-    /// The masks bound, the rendered depth carves (needs masks).
-    Carve,
-    /// TSDF fusion of the rendered depth.
-    Tsdf,
+impl Args {
+    /// Parses the command line, recording which settings it gave.
+    pub fn parse_with_sources() -> Args {
+        let matches = Args::command().get_matches();
+        let mut args = Args::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+        args.given = matches
+            .ids()
+            .filter(|id| {
+                matches.value_source(id.as_str()) == Some(clap::parser::ValueSource::CommandLine)
+            })
+            .map(|id| id.as_str().to_string())
+            .collect();
+        args
+    }
 }
 
 /// Compute backend.
@@ -187,7 +104,7 @@ pub enum Backend {
 }
 
 fn main() {
-    let args = Args::parse();
+    let args = Args::parse_with_sources();
     match pipeline::run(&args) {
         Ok(pipeline::Outcome::Finished) => {}
         Ok(pipeline::Outcome::Interrupted) => std::process::exit(130),

@@ -11,8 +11,8 @@ use gtsr_eval::tsdf::{
     default_truncation, drop_depth_edges, faces_ray, median_pixel_footprint, snap_to_hull,
 };
 use gtsr_eval::{
-    ConsistencySettings, DepthComparison, DepthMetrics, DepthView, ImageRef, MeshMetrics,
-    MeshRaycaster, Timeline, TsdfVolume, largest_component, psnr, score_against_ground_truth, ssim,
+    DepthComparison, DepthMetrics, DepthView, ImageRef, MeshMetrics, MeshRaycaster, Timeline,
+    TsdfVolume, largest_component, psnr, score_against_ground_truth, ssim,
 };
 use gtsr_model::checkpoint::write_atomic;
 use gtsr_model::export::write_splat_ply;
@@ -64,43 +64,15 @@ impl NativeMasks {
     }
 }
 
-/// Mesh extraction settings from the command line (`None`: from the scene).
+/// Mesh extraction: the settings and what the scene gives them.
 pub struct MeshSettings {
-    /// Carve inside the masks (with [`MeshSettings::masks`]) or fuse a TSDF.
-    pub fusion: crate::Fusion,
-    /// How many views must agree to carve, and by how much.
-    pub carve: gtsr_eval::CarveSettings,
-    /// The carving grid's spacing; `None`: [`NativeMasks::voxel`].
-    pub carve_voxel: Option<f32>,
+    /// The settings (`config.json`'s `mesh`).
+    pub config: gtsr_eval::MeshConfig,
     /// The masks at the dataset's resolution (every training view has one).
     pub masks: Option<NativeMasks>,
-    /// Voxel size.
-    pub voxel: Option<f32>,
-    /// Truncation distance.
-    pub truncation: Option<f32>,
-    /// Truncation distance in training-pixel footprints at the mesh box's centre (ignored
-    /// with [`MeshSettings::truncation`]).
-    pub truncation_footprints: Option<f32>,
     /// The training views at the fusion resolution (cameras and masks), rendered again for the
     /// mesh; empty: the training views as trained.
     pub fusion_views: Vec<gtsr_data::View>,
-    /// Keep the masks' visual hull in the TSDF (when every view has a mask).
-    pub silhouette_carving: bool,
-    /// Fuse the rendered depth (false: silhouettes alone, the hull on the fusion grid).
-    pub fuse_depth: bool,
-    /// Fuse, per pixel, the depth of the surface splat at which the transmittance falls to
-    /// this value ([`Model::render_depth_crossing`]; 0.5: the median depth) instead of the
-    /// blended unbiased depth. The test-view depth metrics then measure this depth too.
-    pub depth_crossing: Option<f64>,
-    /// Inside the hull where no depth was fused, the hull's own distance instead of
-    /// `-truncation` ([`TsdfVolume::with_hull_inside_distance`]).
-    pub hull_inside_distance: bool,
-    /// Replace the depth samples that lie less than this many pixel footprints behind the
-    /// masks' hull by the hull's depth ([`gtsr_eval::tsdf::snap_to_hull`]); needs carving.
-    pub snap_to_hull: Option<f32>,
-    /// Keep only the depth samples that neighbouring views agree with
-    /// ([`gtsr_eval::consistency`]); `None`: every sample.
-    pub consistency: Option<ConsistencySettings>,
     /// The mesh box from the masks ([`hull_bounds`], computed once per run); `None`: from the
     /// surface Gaussians at each extraction.
     pub bounds: Option<(Vec3, Vec3)>,
@@ -183,20 +155,20 @@ fn training_cameras(scene: &Scene) -> Vec<gtsr_data::Camera> {
 }
 
 /// The surface geometry whose depth is fused and measured: the blended maps, or with
-/// [`MeshSettings::depth_crossing`] those of the crossing splat.
+/// the mesh setting `depth_crossing` those of the crossing splat.
 fn fusion_geometry(
     model: &Model,
     camera: &gtsr_render_kernels::Camera,
     rays: &burn::tensor::Tensor<3>,
     settings: &MeshSettings,
 ) -> Result<gtsr_model::model::GeometryMaps> {
-    Ok(match settings.depth_crossing {
+    Ok(match settings.config.depth_crossing {
         Some(t) => model.render_depth_crossing(camera, rays, t)?,
         None => model.render_depth(camera, rays)?,
     })
 }
 
-/// The mesh: with masks and [`crate::Fusion::Carve`], the native masks carved by the rendered
+/// The mesh: with masks and [`gtsr_eval::Fusion::Carve`], the native masks carved by the rendered
 /// depth ([`gtsr_eval::carve`]); otherwise TSDF fusion of the unbiased depth of every training
 /// view (depth kept where the mask, or without masks the surface coverage, is at least 0.5).
 /// Marching cubes, largest component.
@@ -212,10 +184,10 @@ pub fn extract_mesh(
     } else {
         settings.fusion_views.iter().collect()
     };
-    if settings.fusion == crate::Fusion::Carve
+    if settings.config.fusion == gtsr_eval::Fusion::Carve
         && let Some(masks) = &settings.masks
     {
-        if !settings.fuse_depth {
+        if !settings.config.fuse_depth {
             return Ok(masks.mesh.clone());
         }
         let (lo, hi) = settings
@@ -223,7 +195,7 @@ pub fn extract_mesh(
             .context("the carving box comes from the masks")?;
         // The full grid also in the in-run evaluations, so that their chamfer compares with
         // the final one (the masks' own mesh is on this grid).
-        let voxel = settings.carve_voxel.unwrap_or(masks.voxel);
+        let voxel = settings.config.carve_voxel.unwrap_or(masks.voxel);
         let maps = host_views
             .iter()
             .enumerate()
@@ -243,7 +215,7 @@ pub fn extract_mesh(
             lo,
             hi,
             voxel,
-            &settings.carve,
+            &settings.config.carve(),
         )?);
     }
     let (lo, hi) = settings
@@ -251,6 +223,7 @@ pub fn extract_mesh(
         .unwrap_or_else(|| mesh_bounds(&trainer.model));
     let radius = 0.5 * (hi - lo).max_element();
     let mut voxel = settings
+        .config
         .voxel
         .unwrap_or_else(|| gtsr_eval::default_voxel_for_radius(radius));
     if coarse {
@@ -263,26 +236,29 @@ pub fn extract_mesh(
     // PGSR's and 2DGS's TSDF fusion: each such vote is +truncation on every voxel along the
     // ray, and near the silhouettes it pulled the surface outward (wax_knot's full model, 64 px:
     // chamfer x1e3 14.0 with them). Without masks, the pixels the render leaves empty vote.
-    let free_space_votes = settings.silhouette_carving || !masked;
-    if !(settings.fuse_depth || (masked && settings.silhouette_carving)) {
+    let free_space_votes = settings.config.silhouette_carving || !masked;
+    if !(settings.config.fuse_depth || (masked && settings.config.silhouette_carving)) {
         anyhow::bail!("fusing silhouettes alone needs a mask on every training view and carving");
     }
     let footprint = || median_pixel_footprint(cameras.iter().copied(), 0.5 * (lo + hi));
-    let trunc = match (settings.truncation, settings.truncation_footprints) {
+    let trunc = match (
+        settings.config.truncation,
+        settings.config.truncation_footprints,
+    ) {
         (Some(t), _) => t,
         (None, Some(f)) => f * footprint(),
         (None, None) => default_truncation(radius, footprint(), free_space_votes),
     }
     .max(voxel);
     let mut tsdf = TsdfVolume::new(lo, hi, voxel, trunc)?;
-    if settings.silhouette_carving && masked {
+    if settings.config.silhouette_carving && masked {
         // The object lies inside every mask: the surface stays inside the masks' hull.
         tsdf = tsdf.with_silhouette_carving();
-        if settings.hull_inside_distance {
+        if settings.config.hull_inside_distance {
             tsdf = tsdf.with_hull_inside_distance();
         }
     }
-    if !settings.fuse_depth {
+    if !settings.config.fuse_depth {
         // Silhouettes alone (every view has a mask, checked above): nothing to render.
         for data in &host_views {
             let n = data.camera.width as usize * data.camera.height as usize;
@@ -294,7 +270,7 @@ pub fn extract_mesh(
     for (k, data) in host_views.iter().enumerate() {
         maps.push(fusion_depth(trainer, &model, k, data, settings)?);
     }
-    if let Some(c) = &settings.consistency {
+    if let Some(c) = &settings.config.depth_consistency {
         let views: Vec<DepthView> = host_views
             .iter()
             .zip(&maps)
@@ -315,8 +291,8 @@ pub fn extract_mesh(
             *depth = f;
         }
     }
-    if let Some(f) = settings.snap_to_hull {
-        if !(masked && settings.silhouette_carving) {
+    if let Some(f) = settings.config.snap_to_hull {
+        if !(masked && settings.config.silhouette_carving) {
             anyhow::bail!("snapping the depth to the hull needs masks and silhouette carving");
         }
         // The hull from every mask first (depth 0 measures nothing), then each view's depth
@@ -338,7 +314,7 @@ pub fn extract_mesh(
     }
     // After snapping the hull holds every mask already; a pixel outside its mask has no depth
     // (`fusion_depth`) and with carving casts no TSDF vote, so the masks need not come again.
-    let masks_pending = settings.snap_to_hull.is_none() && free_space_votes;
+    let masks_pending = settings.config.snap_to_hull.is_none() && free_space_votes;
     for (data, (depth, mask)) in host_views.iter().zip(&maps) {
         tsdf.integrate(&data.camera, depth, masks_pending.then_some(&mask[..]))?;
     }
@@ -513,10 +489,20 @@ pub fn write_text(path: &Path, text: &str) -> Result<()> {
     write_atomic(path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))
 }
 
-/// `gaussians.ply`.
-pub fn write_splats(trainer: &Trainer, out: &Path) -> Result<usize> {
+/// The map from the trained (normalised) frame back to the dataset's own coordinates.
+pub fn dataset_frame(scene: &Scene) -> gtsr_data::Normalisation {
+    if scene.normalisation_applied {
+        scene.normalisation
+    } else {
+        gtsr_data::Normalisation::IDENTITY
+    }
+}
+
+/// `gaussians.ply`, in the dataset's frame.
+pub fn write_splats(trainer: &Trainer, scene: &Scene, out: &Path) -> Result<usize> {
     let path = out.join("gaussians.ply");
-    write_splat_ply(&trainer.model, &path).with_context(|| format!("writing {}", path.display()))
+    write_splat_ply(&trainer.model, &path, &dataset_frame(scene))
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 fn to_u8(v: f32) -> u8 {
@@ -646,8 +632,14 @@ pub fn finish(
         None => extract_mesh(trainer, scene, settings, false)?,
     };
     let mesh_path = out.join("mesh.ply");
-    write_ply(&mesh_path, &mesh).with_context(|| format!("writing {}", mesh_path.display()))?;
-    let n_splats = write_splats(trainer, out)?;
+    // Metrics are taken in the trained frame (above); the file is in the dataset's.
+    let frame = dataset_frame(scene);
+    let world = TriMesh {
+        positions: mesh.positions.iter().map(|p| frame.to_world(*p)).collect(),
+        ..mesh.clone()
+    };
+    write_ply(&mesh_path, &world).with_context(|| format!("writing {}", mesh_path.display()))?;
+    let n_splats = write_splats(trainer, scene, out)?;
     let n_strips = write_strips(trainer, tests, scene, &out.join("renders"))?;
     let (ns, ni) = trainer.model.counts();
     let masks_alone = match (gt, &settings.masks) {

@@ -10,9 +10,10 @@ use anyhow::{Context, Result, bail};
 use burn::tensor::Device;
 use gtsr_data::synthetic::{MaterialPreset, SceneConfig, ShapeKind, generate_scene};
 use gtsr_data::{Downscale, LoadOptions, Scene, load_scene};
+use gtsr_eval::MeshConfig;
 use gtsr_eval::{Timeline, TimelinePoint};
 use gtsr_model::checkpoint;
-use gtsr_model::config::{Decision, Init, Preset, TrainConfig, auto_components};
+use gtsr_model::config::{Decision, Preset, TrainConfig, auto_components};
 use gtsr_model::trainer::{StepTimes, Trainer, initial_points};
 use gtsr_model::views::{ViewTensors, scene_evidence, upload_views};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -20,11 +21,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::outputs::{self, MeshSettings};
 use crate::{Args, Backend};
-
-/// The default cap on the surface set (three per pixel of a view up to this).
-const MAX_SURFACE: usize = 65_536;
-/// The default cap on the interior set (one per pixel of a view up to this).
-const MAX_INTERIOR: usize = 32_768;
 
 /// How the run ended.
 pub enum Outcome {
@@ -96,9 +92,12 @@ fn ensure_default_scene(dir: &Path) -> Result<PathBuf> {
 struct ResolvedConfig {
     data: PathBuf,
     resolution: u32,
-    preset: String,
+    preset: Preset,
     decisions: Vec<Decision>,
     train: TrainConfig,
+    /// Absent in the files of runs from before the mesh settings were recorded.
+    #[serde(default)]
+    mesh: MeshConfig,
 }
 
 /// Progress saved with each checkpoint (training time is not in the model checkpoint).
@@ -107,129 +106,130 @@ struct RunState {
     train_seconds: f64,
 }
 
-/// The resolution recorded in a run's `config.json` (none for a bare training configuration,
-/// or a file that does not parse: [`resolve_config`] reports that).
-fn config_resolution(path: &Path) -> Option<u32> {
-    let text = std::fs::read_to_string(path).ok()?;
-    serde_json::from_str::<ResolvedConfig>(&text)
-        .ok()
-        .map(|r| r.resolution)
+/// What `--config` gives: a run's `config.json`, or a bare training configuration (then the
+/// mesh settings are the defaults, and neither the resolution nor the preset is given).
+struct FileConfig {
+    train: TrainConfig,
+    mesh: MeshConfig,
+    resolution: Option<u32>,
+    preset: Option<Preset>,
+    decisions: Vec<Decision>,
 }
 
+fn read_config(path: &Path) -> Result<FileConfig> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    match serde_json::from_str::<ResolvedConfig>(&text) {
+        Ok(r) => Ok(FileConfig {
+            train: r.train,
+            mesh: r.mesh,
+            resolution: Some(r.resolution),
+            preset: Some(r.preset),
+            decisions: r.decisions,
+        }),
+        Err(run_err) => match serde_json::from_str::<TrainConfig>(&text) {
+            Ok(train) => Ok(FileConfig {
+                train,
+                mesh: MeshConfig::default(),
+                resolution: None,
+                preset: None,
+                decisions: Vec::new(),
+            }),
+            Err(_) => Err(anyhow::anyhow!(
+                "{}: not a gtsr-train configuration ({run_err})",
+                path.display()
+            )),
+        },
+    }
+}
+
+/// Overlays on `base` the settings that `args` gave on the command line: each given id is a
+/// path in `config.json` (`train.weights.mask`), and the value at that path comes from the
+/// parsed command line.
+fn overlay_given(base: &mut serde_json::Value, args: &Args) -> Result<()> {
+    let cli = serde_json::json!({ "train": args.train, "mesh": args.mesh });
+    for id in &args.given {
+        if !(id.starts_with("train.") || id.starts_with("mesh.")) {
+            continue;
+        }
+        let pointer = format!("/{}", id.replace('.', "/"));
+        let value = cli
+            .pointer(&pointer)
+            .with_context(|| format!("setting {id} is not in the configuration"))?;
+        *base
+            .pointer_mut(&pointer)
+            .with_context(|| format!("setting {id} is not in the configuration"))? = value.clone();
+    }
+    Ok(())
+}
+
+/// The run's settings: the scene's defaults (or `--config`), the schedule laid out again when
+/// `--iterations` changes the length, then the flags given on the command line.
 fn resolve_config(
     args: &Args,
     scene: &Scene,
+    file: Option<FileConfig>,
     iterations: usize,
-) -> Result<(TrainConfig, Vec<Decision>)> {
+) -> Result<(TrainConfig, MeshConfig, Vec<Decision>)> {
     let mut decisions = Vec::new();
-    let mut cfg = if let Some(path) = &args.config {
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        // Accept both a bare TrainConfig and a config.json written by a previous run.
-        match serde_json::from_str::<ResolvedConfig>(&text) {
-            Ok(r) => r.train,
-            Err(_) => serde_json::from_str::<TrainConfig>(&text)
-                .with_context(|| format!("{}: not a gtsr-train configuration", path.display()))?,
-        }
-    } else {
-        let preset = Preset::from_name(&args.preset).with_context(|| {
-            format!(
-                "unknown preset '{}' (choose from {})",
-                args.preset,
-                Preset::ALL
-                    .iter()
-                    .map(|p| p.name())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            )
-        })?;
-        let components = match preset.components() {
-            Some(c) => c,
-            None => {
-                let (c, d) = auto_components(&scene_evidence(scene, 30.0)?);
-                decisions = d;
-                c
+    let (mut train, mesh) = match file {
+        Some(f) => {
+            let mut t = f.train;
+            if args.iterations.is_some() && t.iterations != iterations {
+                t.set_schedule(iterations);
             }
-        };
-        let mut c = TrainConfig::for_iterations(components, iterations);
-        // CPU-sized defaults: a few thousand steps on small images.
-        // Caps scale with the image size: about 3 surface and 1 interior Gaussian per pixel
-        // of one view (64x64: 12k + 4k; 128x128: 49k + 16k), and at most 64k + 32k: a stage-2
-        // step's cost grows with the Gaussians, and at 256 px the larger sets (196k + 65k)
-        // took twice the time per step for a lower test PSNR at equal training time.
-        let pixels = scene.train[0].width() as usize * scene.train[0].height() as usize;
-        c.init_surface = (pixels).clamp(2_000, 20_000);
-        c.init_interior = (pixels / 2).clamp(1_000, 10_000);
-        c.densify.max_surface = (3 * pixels).clamp(10_000, MAX_SURFACE);
-        c.densify.max_interior = pixels.clamp(4_000, MAX_INTERIOR);
-        // With masks on every training view: start the surface set inside them and weigh the
-        // mask term as much as the images. With the paper's random start and 0.1 the surface
-        // set on wax_knot (64 px, 1500 steps) stayed a smooth blob over the knot's holes, which
-        // the Fresnel weighting hides from C_SH (chamfer 0.042 against 0.021 with both changes,
-        // both fused with truncation 0.12; test PSNR 27.4 against 28.5 dB).
-        if scene.train.iter().all(|v| v.mask.is_some()) {
-            c.init = Init::MaskCarved;
-            c.weights.mask = 1.0;
+            decisions = f.decisions;
+            (t, f.mesh)
         }
-        c
+        None => {
+            let components = match args.preset.components() {
+                Some(c) => c,
+                None => {
+                    let (c, d) = auto_components(&scene_evidence(scene, 30.0)?);
+                    decisions = d;
+                    c
+                }
+            };
+            let view = &scene.train[0];
+            let pixels = view.width() as usize * view.height() as usize;
+            let masked = scene.train.iter().all(|v| v.mask.is_some());
+            (
+                TrainConfig::for_views(components, iterations, pixels, masked),
+                MeshConfig::default(),
+            )
+        }
     };
-    if args.iterations.is_some() && cfg.iterations != iterations {
-        let comps = cfg.components;
-        let keep = cfg.clone();
-        cfg = TrainConfig::for_iterations(comps, iterations);
-        cfg.weights = keep.weights;
-        cfg.lr = keep.lr;
-        cfg.init = keep.init;
-        cfg.init_surface = keep.init_surface;
-        cfg.init_interior = keep.init_interior;
-        cfg.densify.max_surface = keep.densify.max_surface;
-        cfg.densify.max_interior = keep.densify.max_interior;
-        cfg.seed = keep.seed;
-        cfg.blur_px2 = keep.blur_px2;
-    }
-    let c = &mut cfg.components;
-    for (flag, name, field) in [
-        (args.no_interior, "interior", &mut c.interior),
-        (args.no_fresnel, "fresnel", &mut c.fresnel),
-        (args.no_pbr, "pbr", &mut c.pbr),
-        (args.no_multi_view, "multi_view", &mut c.multi_view),
-        (args.no_single_view, "single_view", &mut c.single_view),
-    ] {
-        if flag {
-            *field = false;
+    let mut json = serde_json::json!({ "train": train, "mesh": mesh });
+    overlay_given(&mut json, args)?;
+    let (given_train, mesh): (TrainConfig, MeshConfig) = (
+        serde_json::from_value(json["train"].take()).context("the training settings")?,
+        serde_json::from_value(json["mesh"].take()).context("the mesh settings")?,
+    );
+    // A component switched on the command line is a decision too.
+    for id in &args.given {
+        if let Some(name) = id.strip_prefix("train.components.")
+            && name != "sh_degree"
+        {
+            let on = serde_json::to_value(given_train.components)?[name] == true;
+            decisions.retain(|d| d.component != name);
             decisions.push(Decision {
                 component: name.into(),
-                enabled: false,
-                reason: format!("--no-{}", name.replace('_', "-")),
+                enabled: on,
+                reason: format!("--{} {on} on the command line", name.replace('_', "-")),
             });
         }
     }
-    if !c.pbr {
-        c.smoothness = false;
+    train = given_train;
+    if !train.components.pbr && train.components.smoothness {
+        // Smoothness regularises the PBR maps only.
+        train.components.smoothness = false;
     }
-    if let Some(d) = args.sh_degree {
-        c.sh_degree = d;
-    }
-    if let Some(s) = args.seed {
-        cfg.seed = s;
-    }
-    if let Some(w) = args.opacity_entropy {
-        cfg.weights.opacity_entropy = w;
-    }
-    if args.mask_deficit_only {
-        cfg.weights.mask_deficit_only = true;
-    }
-    if let Some(init) = &args.init {
-        cfg.init = match init.as_str() {
-            "random" => Init::Random,
-            "mask-carved" => Init::MaskCarved,
-            "hull-surface" => Init::HullSurface,
-            other => bail!("unknown --init '{other}' (random, mask-carved or hull-surface)"),
-        };
-    }
-    cfg.validate()
+    train
+        .validate()
         .map_err(|e| anyhow::anyhow!("invalid configuration: {e}"))?;
-    Ok((cfg, decisions))
+    mesh.validate()
+        .map_err(|e| anyhow::anyhow!("invalid mesh settings: {e}"))?;
+    Ok((train, mesh, decisions))
 }
 
 /// The training views at `--mesh-resolution`, loaded again when that is larger than what was
@@ -237,13 +237,13 @@ fn resolve_config(
 /// the training size: a model trained at 64 px and fused at 128 px measured worse on wax_knot
 /// (chamfer x1e3 5.9 against 5.4).
 fn fusion_views(
-    args: &Args,
+    mesh_resolution: Option<u32>,
     data_dir: &Path,
     opts: &LoadOptions,
     scene: &Scene,
 ) -> Result<Vec<gtsr_data::View>> {
     let trained = scene.train[0].width().max(scene.train[0].height());
-    let wanted = args.mesh_resolution.unwrap_or(trained);
+    let wanted = mesh_resolution.unwrap_or(trained);
     if wanted <= trained {
         return Ok(Vec::new());
     }
@@ -344,6 +344,19 @@ pub fn run(args: &Args) -> Result<Outcome> {
             "--backend wgpu: this gtsr-train was built without its `wgpu` feature; rebuild with the default features or use --backend ndarray"
         );
     }
+    if let Some(d) = &args.data
+        && !d.is_dir()
+    {
+        bail!(
+            "--data {}: {}",
+            d.display(),
+            if d.exists() {
+                "not a folder (give the dataset's folder)"
+            } else {
+                "no such folder"
+            }
+        );
+    }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let data_dir = match &args.data {
@@ -351,14 +364,16 @@ pub fn run(args: &Args) -> Result<Outcome> {
         None => ensure_default_scene(&args.scene_cache)?,
     };
     let blender = data_dir.join("transforms_train.json").is_file();
+    let file = args.config.as_deref().map(read_config).transpose()?;
     // A run's own config.json also gives the resolution it trained at.
     let resolution = args
         .resolution
-        .or_else(|| args.config.as_deref().and_then(config_resolution))
+        .or(file.as_ref().and_then(|f| f.resolution))
         .unwrap_or(if args.data.is_none() { 64 } else { 128 });
     let opts = LoadOptions {
         downscale: Downscale::MaxSide(resolution),
-        // Blender/NeRF object scenes are already object-centred; COLMAP scenes are normalised.
+        // Blender/NeRF object scenes are already object-centred; COLMAP scenes are normalised
+        // (the outputs are mapped back to the dataset's frame).
         apply_normalisation: !blender,
         ..LoadOptions::default()
     };
@@ -369,8 +384,11 @@ pub fn run(args: &Args) -> Result<Outcome> {
     }
     let iterations = args
         .iterations
+        .map(|n| n as usize)
         .unwrap_or(if args.data.is_none() { 1500 } else { 3000 });
-    let (config, decisions) = resolve_config(args, &scene, iterations)?;
+    // With --config the file's preset is the one the settings came from.
+    let preset = file.as_ref().and_then(|f| f.preset).unwrap_or(args.preset);
+    let (config, mesh_config, decisions) = resolve_config(args, &scene, file, iterations)?;
     for d in &decisions {
         println!(
             "component {}: {} ({})",
@@ -382,9 +400,10 @@ pub fn run(args: &Args) -> Result<Outcome> {
     let resolved = ResolvedConfig {
         data: data_dir.clone(),
         resolution,
-        preset: args.preset.clone(),
+        preset,
         decisions,
         train: config.clone(),
+        mesh: mesh_config.clone(),
     };
     outputs::write_json(&args.out.join("config.json"), &resolved)?;
 
@@ -406,7 +425,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
             .and_then(|s| serde_json::from_str(&s).ok())
             .unwrap_or_default();
         let tl = Timeline::read_csv(&timeline_path).unwrap_or_default();
-        if let Some(n) = args.iterations
+        if let Some(n) = args.iterations.map(|n| n as usize)
             && n != t.config.iterations
         {
             bail!(
@@ -441,93 +460,25 @@ pub fn run(args: &Args) -> Result<Outcome> {
         }
         None => None,
     };
-    if let Some(t) = args.depth_crossing
-        && !(t > 0.0 && t < 1.0)
-    {
-        bail!("--depth-crossing must be in (0, 1), got {t}");
-    }
-    if let Some(k) = args.depth_consistency
-        && !(k >= 1 && k <= args.consistency_neighbours)
-    {
+    let masked = scene.train.iter().all(|v| v.mask.is_some());
+    if !mesh_config.fuse_depth && !masked {
         bail!(
-            "--depth-consistency must be in 1..=--consistency-neighbours ({}), got {k}",
-            args.consistency_neighbours
-        );
-    }
-    if !(args.consistency_footprints.is_finite() && args.consistency_footprints > 0.0) {
-        bail!(
-            "--consistency-footprints must be positive, got {}",
-            args.consistency_footprints
-        );
-    }
-    if let Some(f) = args.truncation_footprints
-        && !(f.is_finite() && f > 0.0)
-    {
-        bail!("--truncation-footprints must be positive, got {f}");
-    }
-    if let Some(f) = args.snap_to_hull
-        && !(f.is_finite() && f >= 0.0)
-    {
-        bail!("--snap-to-hull must be a finite number of footprints >= 0, got {f}");
-    }
-    if args.silhouettes_only && scene.train.iter().any(|v| v.mask.is_none()) {
-        bail!(
-            "--silhouettes-only needs a mask on every training view; {} has none on some",
+            "mesh.fuse_depth off (the masks alone) needs a mask on every training view; {} has \
+             none on some",
             data_dir.display()
         );
     }
-    if args.fusion == crate::Fusion::Carve && scene.train.iter().all(|v| v.mask.is_some()) {
-        let tsdf_only = [
-            (args.no_silhouette_carving, "--no-silhouette-carving"),
-            (args.hull_inside_distance, "--hull-inside-distance"),
-            (args.snap_to_hull.is_some(), "--snap-to-hull"),
-            (args.depth_consistency.is_some(), "--depth-consistency"),
-            (args.truncation.is_some(), "--truncation"),
-            (
-                args.truncation_footprints.is_some(),
-                "--truncation-footprints",
-            ),
-            (args.voxel.is_some(), "--voxel"),
-        ];
-        if let Some((_, flag)) = tsdf_only.iter().find(|(on, _)| *on) {
-            bail!("{flag} applies to --fusion tsdf (the default is carve)");
-        }
-    }
-    let carve = gtsr_eval::CarveSettings {
-        min_views: args.carve_views,
-        margin_footprints: args.carve_margin,
-        min_free_ratio: args.carve_free_ratio,
-    };
-    carve
-        .validate()
-        .map_err(|e| anyhow::anyhow!("--carve-views / --carve-margin / --carve-free-ratio: {e}"))?;
-    if let Some(v) = args.carve_voxel
-        && !(v.is_finite() && v > 0.0)
+    if mesh_config.fusion == gtsr_eval::Fusion::Carve
+        && masked
+        && let Some(name) = mesh_config.tsdf_settings_set().first()
     {
-        bail!("--carve-voxel must be positive, got {v}");
+        bail!("mesh.{name} applies to --fusion tsdf (the default is carve)");
     }
     let masks = native_masks(&data_dir, &opts, &scene)?;
     let mesh_settings = MeshSettings {
-        fusion: args.fusion,
-        carve,
-        carve_voxel: args.carve_voxel,
+        fusion_views: fusion_views(mesh_config.mesh_resolution, &data_dir, &opts, &scene)?,
+        config: mesh_config,
         masks,
-        voxel: args.voxel,
-        truncation: args.truncation,
-        truncation_footprints: args.truncation_footprints,
-        fusion_views: fusion_views(args, &data_dir, &opts, &scene)?,
-        silhouette_carving: !args.no_silhouette_carving,
-        fuse_depth: !args.silhouettes_only,
-        depth_crossing: args.depth_crossing,
-        snap_to_hull: args.snap_to_hull,
-        hull_inside_distance: args.hull_inside_distance,
-        consistency: args
-            .depth_consistency
-            .map(|min_agree| gtsr_eval::ConsistencySettings {
-                neighbours: args.consistency_neighbours,
-                min_agree,
-                footprints: args.consistency_footprints,
-            }),
         bounds: outputs::hull_bounds(&scene.train)?,
     };
 
@@ -583,7 +534,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
             }
             save_checkpoint(&trainer, &ckpt_path, &state_path, train_seconds)?;
             timeline.write_csv(&timeline_path)?;
-            outputs::write_splats(&trainer, &args.out)?;
+            outputs::write_splats(&trainer, &scene, &args.out)?;
             println!("checkpoint {}; continue with --resume", ckpt_path.display());
             return Ok(Outcome::Interrupted);
         }
@@ -600,7 +551,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
         ));
         if trainer.step % log_every == 0 && bar.is_hidden() {
             println!(
-                "step {:6}/{iterations}  stage {}  loss {:.4}  gaussians {}+{}  \
+                "step {:6}/{iterations}  stage {}  loss {:.6}  gaussians {}+{}  \
                  tile-splats/pass {}  {:.1} s",
                 trainer.step,
                 r.stage,

@@ -37,16 +37,16 @@ pub struct BenchReconArgs {
     /// instead of training them again: for changes to mesh extraction or evaluation.
     #[arg(long)]
     pub reuse: bool,
-    /// The threshold T of each run's extra "crossing depth only" row (gtsr-train
-    /// `--depth-crossing T --no-silhouette-carving`: the depth of the surface splat at which
+    /// The threshold T of each run's extra "crossing depth only" row (the mesh settings
+    /// `depth_crossing` T and `silhouette_carving` off: the depth of the surface splat at which
     /// the transmittance falls to T, instead of the blend, fused alone).
     #[arg(long, default_value_t = 0.97)]
     pub depth_crossing: f64,
     /// Leave the crossing-depth rows out.
     #[arg(long)]
     pub no_crossing_rows: bool,
-    /// The extra "crossing depth snapped to the hull" row of each run (gtsr-train
-    /// `--depth-crossing T --snap-to-hull S --truncation-footprints F`, with the masks): the
+    /// The extra "crossing depth snapped to the hull" row of each run (the mesh settings
+    /// `depth_crossing` T, `snap_to_hull` S, `truncation_footprints` F, with the masks): the
     /// crossing depth, where it lies less than S footprints behind the masks' hull replaced by
     /// the hull's, fused with the masks at a truncation of F footprints. S:
     #[arg(long, default_value_t = 2.0)]
@@ -230,17 +230,18 @@ fn run_gtsr_train(
     read_metrics(out)
 }
 
-/// Another fusion of a trained run: the copy's folder suffix, gtsr-train's flags, the row label.
+/// Another fusion of a trained run: the copy's folder suffix, the mesh settings it changes in
+/// the run's `config.json` (gtsr-eval's `MeshConfig` fields), the row label.
 struct Fusion<'a> {
     suffix: &'a str,
-    flags: Vec<String>,
+    mesh: serde_json::Value,
     label: String,
 }
 
-/// The same trained model fused differently, in a copy of the run (`{run}-{suffix}`, with
-/// gtsr-train's `flag`): `--no-silhouette-carving` fuses the depth maps alone (how much of the
-/// mesh the rendered depth carries on its own), `--silhouettes-only` the masks alone on the
-/// same grid (what the depth adds to them).
+/// The same trained model fused differently, in a copy of the run (`{run}-{suffix}`, its
+/// `config.json` changed by `mesh` and read back with `--config`): `silhouette_carving` off
+/// fuses the depth maps alone (how much of the mesh the rendered depth carries on its own),
+/// `fuse_depth` off the masks alone on the same grid (what the depth adds to them).
 fn derived_row(
     exe: &Path,
     scene_dir: &Path,
@@ -250,7 +251,7 @@ fn derived_row(
     args: &BenchReconArgs,
     Fusion {
         suffix,
-        flags,
+        mesh,
         label,
     }: Fusion,
 ) -> Result<ReportRow> {
@@ -271,9 +272,23 @@ fn derived_row(
         std::fs::copy(run.join(f), out.join(f))
             .with_context(|| format!("copying {} to {}", run.join(f).display(), out.display()))?;
     }
+    let config = out.join("config.json");
+    let mut json: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&config)
+            .with_context(|| format!("reading {}", config.display()))?,
+    )
+    .with_context(|| format!("{}: not JSON", config.display()))?;
+    for (k, v) in mesh
+        .as_object()
+        .context("the mesh settings are an object")?
+    {
+        json["mesh"][k] = v.clone();
+    }
+    gtsr_data::image_io::write_atomic(&config, serde_json::to_string_pretty(&json)?.as_bytes())
+        .with_context(|| format!("writing {}", config.display()))?;
     let t0 = Instant::now();
-    let mut extra = vec!["--resume"];
-    extra.extend(flags.iter().map(String::as_str));
+    let config_arg = config.to_string_lossy().into_owned();
+    let extra = ["--resume", "--config", config_arg.as_str()];
     let m = run_gtsr_train(
         exe,
         scene_dir,
@@ -411,16 +426,15 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                 let mut fusions = vec![
                     Fusion {
                         suffix: "tsdf",
-                        flags: vec!["--fusion".into(), "tsdf".into()],
+                        mesh: serde_json::json!({ "fusion": "tsdf" }),
                         label: format!("{label}, TSDF fusion with the masks' hull"),
                     },
                     Fusion {
                         suffix: "depth-only",
-                        flags: vec![
-                            "--fusion".into(),
-                            "tsdf".into(),
-                            "--no-silhouette-carving".into(),
-                        ],
+                        mesh: serde_json::json!({
+                            "fusion": "tsdf",
+                            "silhouette_carving": false,
+                        }),
                         label: format!("{label}, depth only (no silhouettes in the fusion)"),
                     },
                 ];
@@ -428,13 +442,11 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                     let t = args.depth_crossing;
                     fusions.push(Fusion {
                         suffix: "crossing-depth-only",
-                        flags: vec![
-                            "--fusion".into(),
-                            "tsdf".into(),
-                            "--no-silhouette-carving".into(),
-                            "--depth-crossing".into(),
-                            t.to_string(),
-                        ],
+                        mesh: serde_json::json!({
+                            "fusion": "tsdf",
+                            "silhouette_carving": false,
+                            "depth_crossing": t,
+                        }),
                         label: format!("{label}, crossing depth only (T = {t}, no silhouettes)"),
                     });
                 }
@@ -446,16 +458,12 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                     );
                     fusions.push(Fusion {
                         suffix: "crossing-snapped",
-                        flags: vec![
-                            "--fusion".into(),
-                            "tsdf".into(),
-                            "--depth-crossing".into(),
-                            t.to_string(),
-                            "--snap-to-hull".into(),
-                            sf.to_string(),
-                            "--truncation-footprints".into(),
-                            tf.to_string(),
-                        ],
+                        mesh: serde_json::json!({
+                            "fusion": "tsdf",
+                            "depth_crossing": t,
+                            "snap_to_hull": sf,
+                            "truncation_footprints": tf,
+                        }),
                         label: format!(
                             "{label}, crossing depth snapped to the hull (T = {t}; snap {sf}, \
                              truncation {tf} footprints; with the masks)"
@@ -479,23 +487,18 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
             for fusion in [
                 Fusion {
                     suffix: "silhouettes-only",
-                    flags: vec![
-                        "--fusion".into(),
-                        "tsdf".into(),
-                        "--silhouettes-only".into(),
-                    ],
+                    mesh: serde_json::json!({ "fusion": "tsdf", "fuse_depth": false }),
                     label: "masks only, fused as gtsr-train does (the full run's grid, no depth)"
                         .into(),
                 },
                 Fusion {
                     suffix: "silhouettes-only-inside-distance",
-                    flags: vec![
-                        "--fusion".into(),
-                        "tsdf".into(),
-                        "--silhouettes-only".into(),
-                        "--hull-inside-distance".into(),
-                    ],
-                    label: "masks only, the hull's own distance inside (--hull-inside-distance)"
+                    mesh: serde_json::json!({
+                        "fusion": "tsdf",
+                        "fuse_depth": false,
+                        "hull_inside_distance": true,
+                    }),
+                    label: "masks only, the hull's own distance inside (hull_inside_distance)"
                         .into(),
                 },
             ] {

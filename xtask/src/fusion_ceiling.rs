@@ -59,7 +59,7 @@ pub struct FusionCeilingArgs {
     #[arg(long)]
     pub keep_edges: bool,
     /// With carving, keep the hull field's own distance inside the hull where no depth was
-    /// fused (gtsr-train's `--hull-inside-distance`).
+    /// fused (the mesh setting `hull_inside_distance`).
     #[arg(long)]
     pub hull_inside_distance: bool,
     /// Also carve the masks at the dataset's resolution with the true depth (gtsr-train's

@@ -2,6 +2,7 @@
 //! is refused with a clear error, and `auto` explains itself.
 
 use burn::tensor::Device;
+use gtsr_data::Normalisation;
 use gtsr_model::checkpoint;
 use gtsr_model::config::{Init, Preset, SceneEvidence, auto_components};
 use gtsr_model::export::write_splat_ply;
@@ -86,7 +87,7 @@ fn splat_ply_has_the_3dgs_layout() {
     t.step = t.config.stage2_start;
     t.step().unwrap();
     let path = dir.path().join("gaussians.ply");
-    let n = write_splat_ply(&t.model, &path).unwrap();
+    let n = write_splat_ply(&t.model, &path, &Normalisation::IDENTITY).unwrap();
     let (ns, ni) = t.model.counts();
     assert_eq!(n, ns + ni);
     let bytes = std::fs::read(&path).unwrap();
@@ -125,6 +126,45 @@ fn splat_ply_has_the_3dgs_layout() {
     };
     assert_eq!(flag(0), 0.0);
     assert_eq!(flag(n - 1), 1.0);
+
+    // In a dataset's own frame: positions mapped back, log-scales shifted by ln(radius), the
+    // rest unchanged.
+    let frame = Normalisation {
+        centre: glam::Vec3::new(3.0, -2.0, 0.5),
+        radius: 4.0,
+    };
+    let world = dir.path().join("gaussians_world.ply");
+    assert_eq!(write_splat_ply(&t.model, &world, &frame).unwrap(), n);
+    let wbytes = std::fs::read(&world).unwrap();
+    assert_eq!(wbytes.len(), bytes.len());
+    let at = |b: &[u8], i: usize, name: &str| {
+        let col = props
+            .iter()
+            .position(|p| *p == format!("property float {name}"))
+            .unwrap();
+        let o = end + (i * props.len() + col) * 4;
+        f32::from_le_bytes(b[o..o + 4].try_into().unwrap())
+    };
+    for i in [0, n / 2, n - 1] {
+        for (a, name) in ["x", "y", "z"].iter().enumerate() {
+            let want = at(&bytes, i, name) * frame.radius + frame.centre[a];
+            assert!((at(&wbytes, i, name) - want).abs() < 1e-5, "{name} of {i}");
+        }
+        let s = at(&wbytes, i, "scale_1") - at(&bytes, i, "scale_1");
+        assert!((s - frame.radius.ln()).abs() < 1e-5);
+        for name in ["rot_0", "rot_3", "opacity", "f_dc_1"] {
+            assert_eq!(at(&wbytes, i, name), at(&bytes, i, name), "{name}");
+        }
+    }
+    // A normalisation that cannot be inverted is refused with the file named.
+    let bad = Normalisation {
+        radius: 0.0,
+        ..frame
+    };
+    let e = write_splat_ply(&t.model, &world, &bad)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("gaussians_world.ply"), "{e}");
 }
 
 #[test]

@@ -2,7 +2,7 @@
 //! through `Fusion` (which is what `Device::wgpu(..)` uses), and differentiable through the
 //! same `Autodiff` node as the CPU kernels.
 //!
-//! Per render, on the device: projection ([`kernels::project_forward`]), a radix sort of the
+//! Per render, on the device: projection ([`fn@kernels::project_forward`]), a radix sort of the
 //! Gaussians by depth ([`scan_sort::radix_sort`]), the tile counts in depth order and their
 //! exclusive scan ([`scan_sort::exclusive_scan`]), one 4-byte readback of the intersection
 //! count (to size the intersection buffers), emission of (tile, emission) pairs, a stable
