@@ -1,5 +1,8 @@
-//! The mesh extraction settings: one serde and [`clap::Args`] struct that a run records in its
-//! `config.json` and a front end flattens into its command line.
+//! Mesh extraction: the settings ([`MeshConfig`], one serde and [`clap::Args`] struct that a
+//! run records in its `config.json` and a front end flattens into its command line) and the
+//! recipe ([`extract_mesh`]) that turns a model's depth maps and the masks into the mesh, used
+//! by `gtsr-train` and the xtasks alike. The depth maps come from the caller (a renderer, or a
+//! ground truth's), prepared by [`prepare_depth`].
 //!
 //! Each argument's id is its path in a run's `config.json` (`mesh.carve_views`), as for the
 //! training settings of `gtsr-model`, so that a front end can overlay what the user gave on a
@@ -7,11 +10,19 @@
 //! `docs/results.md`) are fields of the file only, not command-line flags.
 
 use clap::ValueEnum;
+use glam::Vec3;
+use gtsr_data::Camera;
+use gtsr_data::ply::TriMesh;
 use serde::{Deserialize, Serialize};
 
-use crate::carve::{CarveSettings, MAX_CARVE_VIEWS};
-use crate::consistency::ConsistencySettings;
+use crate::carve::{CarveSettings, DepthMap, MAX_CARVE_VIEWS, carve_mesh};
+use crate::consistency::{ConsistencySettings, DepthView, filter_consistent};
 use crate::error::{EvalError, Result};
+use crate::mesh::largest_component;
+use crate::tsdf::{
+    TsdfVolume, default_truncation, default_voxel_for_radius, drop_depth_edges, faces_ray,
+    median_pixel_footprint, snap_to_hull,
+};
 
 /// How the mesh is extracted.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
@@ -242,6 +253,251 @@ impl MeshConfig {
         }
         Ok(())
     }
+}
+
+/// The masks at the dataset's own resolution and what they give alone: the baseline every mesh
+/// is held to, and the bound the carving works inside.
+#[derive(Clone, Debug)]
+pub struct MasksAlone {
+    /// Every training view's camera and mask.
+    pub views: Vec<(Camera, Vec<f32>)>,
+    /// The masks alone ([`crate::masks_mesh`]).
+    pub mesh: TriMesh,
+    /// The grid spacing of [`MasksAlone::mesh`] ([`crate::hull::masks_voxel`]).
+    pub voxel: f32,
+}
+
+impl MasksAlone {
+    /// The masks' mesh on their own grid; `None` when nothing lies inside every mask.
+    pub fn new(views: Vec<(Camera, Vec<f32>)>) -> Result<Option<Self>> {
+        let borrowed = borrow(&views);
+        let Some((lo, hi)) = crate::hull::hull_box(&borrowed)? else {
+            return Ok(None);
+        };
+        let voxel = crate::hull::masks_voxel(&borrowed, lo, hi);
+        let Some(mesh) = crate::masks_mesh(&borrowed, Some(voxel))? else {
+            return Ok(None);
+        };
+        Ok(Some(MasksAlone { views, mesh, voxel }))
+    }
+
+    /// The views as the hull functions take them.
+    pub fn borrowed(&self) -> Vec<(Camera, &[f32])> {
+        borrow(&self.views)
+    }
+}
+
+fn borrow(views: &[(Camera, Vec<f32>)]) -> Vec<(Camera, &[f32])> {
+    views.iter().map(|(c, m)| (*c, m.as_slice())).collect()
+}
+
+/// One view as the fusion reads it: z-depth (0 where nothing is measured) and the mask (the
+/// coverage at least 0.5 where the scene has no masks), both `width * height`.
+#[derive(Clone, Copy, Debug)]
+pub struct FusionView<'a> {
+    /// The view's camera (at the depth map's size).
+    pub camera: &'a Camera,
+    /// z-depth, 0 where there is no measurement; ignored when the settings fuse no depth.
+    pub depth: &'a [f32],
+    /// Mask in `[0, 1]`.
+    pub mask: &'a [f32],
+}
+
+/// Everything [`extract_mesh`] reads besides the settings.
+#[derive(Clone, Copy, Debug)]
+pub struct FusionInputs<'a> {
+    /// The depth maps and masks, one per training view.
+    pub views: &'a [FusionView<'a>],
+    /// Whether every view's mask is a real mask (not the coverage).
+    pub masked: bool,
+    /// The masks at the dataset's resolution (with [`Fusion::Carve`] on a masked scene).
+    pub masks: Option<&'a MasksAlone>,
+    /// The cameras whose pixel footprint sets the TSDF truncation (the training cameras).
+    pub footprint_cameras: &'a [Camera],
+    /// The box the mesh is extracted in.
+    pub bounds: (Vec3, Vec3),
+    /// A quicker, coarser TSDF (2.5 times the voxel), for evaluations during training.
+    pub coarse: bool,
+}
+
+/// What [`prepare_depth`] reads beside a depth map: the surface's blended normal and plane
+/// distance, the pixels' ray directions (camera frame) and the render's coverage.
+#[derive(Clone, Copy, Debug)]
+pub struct DepthGeometry<'a> {
+    /// Normals, `3 * width * height` (need not be unit).
+    pub normal: &'a [f32],
+    /// The blended plane distance per pixel (for the depth edges).
+    pub plane: &'a [f32],
+    /// Ray directions, `3 * width * height`.
+    pub rays: &'a [f32],
+    /// Coverage per pixel; `None`: full coverage (a ground truth's depth).
+    pub coverage: Option<&'a [f32]>,
+}
+
+/// Keeps in a rendered (or any) depth map only what the fusion may trust, in place: pixels
+/// whose mask and coverage are at least 0.5, whose depth is finite and whose normal faces the
+/// ray ([`faces_ray`]), and, with `drop_edges`, off depth edges ([`drop_depth_edges`]); the
+/// rest become 0.
+pub fn prepare_depth(
+    camera: &Camera,
+    depth: &mut [f32],
+    geometry: &DepthGeometry,
+    mask: &[f32],
+    drop_edges: bool,
+) -> Result<()> {
+    let DepthGeometry {
+        normal,
+        plane,
+        rays,
+        coverage,
+    } = *geometry;
+    let n = camera.width as usize * camera.height as usize;
+    for (what, len, want) in [
+        ("depth", depth.len(), n),
+        ("normal", normal.len(), 3 * n),
+        ("plane", plane.len(), n),
+        ("rays", rays.len(), 3 * n),
+        ("mask", mask.len(), n),
+        ("coverage", coverage.map_or(n, <[f32]>::len), n),
+    ] {
+        if len != want {
+            return Err(EvalError::size(what, want, len));
+        }
+    }
+    for (p, d) in depth.iter_mut().enumerate() {
+        let nrm = Vec3::from_slice(&normal[3 * p..3 * p + 3]);
+        let ray = Vec3::from_slice(&rays[3 * p..3 * p + 3]);
+        let covered = coverage.is_none_or(|c| c[p] >= 0.5);
+        if !(covered && mask[p] >= 0.5 && d.is_finite() && faces_ray(nrm, ray)) {
+            *d = 0.0;
+        }
+    }
+    if drop_edges {
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        drop_depth_edges(depth, normal, plane, rays, w, h, camera.fx)?;
+    }
+    Ok(())
+}
+
+/// The mesh of `inputs` under `config`, and the lines worth reporting about how it was made.
+///
+/// With [`Fusion::Carve`] and the masks: the masks at the dataset's resolution carved by the
+/// depth maps where [`MeshConfig::carve`] agrees ([`carve_mesh`]). Otherwise a TSDF of the
+/// depth maps on the box (voxel: its radius / 256 unless set), with the masks' hull kept in
+/// the volume when every view has a mask and [`MeshConfig::silhouette_carving`] is on; then
+/// marching cubes and the largest connected component.
+pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMesh, Vec<String>)> {
+    config.validate()?;
+    let mut notes = Vec::new();
+    let (lo, hi) = inputs.bounds;
+    if config.fusion == Fusion::Carve
+        && inputs.masked
+        && let Some(masks) = inputs.masks
+    {
+        if !config.fuse_depth {
+            return Ok((masks.mesh.clone(), notes));
+        }
+        let depths: Vec<DepthMap> = inputs
+            .views
+            .iter()
+            .map(|v| DepthMap {
+                camera: v.camera,
+                depth: v.depth,
+            })
+            .collect();
+        let voxel = config.carve_voxel.unwrap_or(masks.voxel);
+        let mesh = carve_mesh(&masks.borrowed(), &depths, lo, hi, voxel, &config.carve())?;
+        return Ok((mesh, notes));
+    }
+    let radius = 0.5 * (hi - lo).max_element();
+    let mut voxel = config
+        .voxel
+        .unwrap_or_else(|| default_voxel_for_radius(radius));
+    if inputs.coarse {
+        voxel *= 2.5;
+    }
+    let masked = inputs.masked;
+    // Free-space votes from outside the masks: with carving they feed the hull field; without
+    // carving on a masked scene (depth alone) there are none, as in PGSR's and 2DGS's TSDF
+    // fusion (each would be +truncation on every voxel along the ray, pulling the surface
+    // outward near the silhouettes). Without masks, the pixels the render leaves empty vote.
+    let carving = config.silhouette_carving && masked;
+    let free_space_votes = config.silhouette_carving || !masked;
+    if !config.fuse_depth && !carving {
+        return Err(EvalError::InvalidArgument(
+            "fusing the masks alone needs a mask on every view and silhouette carving".into(),
+        ));
+    }
+    let footprint = || median_pixel_footprint(inputs.footprint_cameras, 0.5 * (lo + hi));
+    let truncation = match (config.truncation, config.truncation_footprints) {
+        (Some(t), _) => t,
+        (None, Some(f)) => f * footprint(),
+        (None, None) => default_truncation(radius, footprint(), free_space_votes),
+    }
+    .max(voxel);
+    let mut tsdf = TsdfVolume::new(lo, hi, voxel, truncation)?;
+    if carving {
+        // The object lies inside every mask: the surface stays inside the masks' hull.
+        tsdf = tsdf.with_silhouette_carving();
+        if config.hull_inside_distance {
+            tsdf = tsdf.with_hull_inside_distance();
+        }
+    }
+    if !config.fuse_depth {
+        for v in inputs.views {
+            tsdf.integrate(v.camera, &vec![0.0; v.mask.len()], Some(v.mask))?;
+        }
+        return Ok((largest_component(&tsdf.extract_mesh()), notes));
+    }
+    let mut maps: Vec<Vec<f32>> = inputs.views.iter().map(|v| v.depth.to_vec()).collect();
+    if let Some(c) = &config.depth_consistency {
+        let views: Vec<DepthView> = inputs
+            .views
+            .iter()
+            .zip(&maps)
+            .map(|(v, depth)| DepthView {
+                camera: v.camera,
+                depth,
+            })
+            .collect();
+        let (filtered, stats) = filter_consistent(&views, c)?;
+        notes.push(format!(
+            "depth consistency ({} of {} neighbours within {} footprints): dropped {} of {} \
+             samples",
+            c.min_agree, c.neighbours, c.footprints, stats.dropped, stats.samples
+        ));
+        maps = filtered;
+    }
+    if let Some(f) = config.snap_to_hull {
+        // The hull from every mask first (depth 0 measures nothing), then each view's depth
+        // against it (validate: snapping needs carving, and here every view has a mask).
+        if !carving {
+            return Err(EvalError::InvalidArgument(
+                "snapping the depth to the hull needs a mask on every view".into(),
+            ));
+        }
+        for v in inputs.views {
+            tsdf.integrate(v.camera, &vec![0.0; v.mask.len()], Some(v.mask))?;
+        }
+        let (mut snapped, mut samples) = (0, 0);
+        for (v, depth) in inputs.views.iter().zip(maps.iter_mut()) {
+            let hull = tsdf.hull_depth(v.camera).ok_or_else(|| {
+                EvalError::InvalidArgument("the volume has no hull to snap to".into())
+            })?;
+            samples += depth.iter().filter(|d| **d > 0.0).count();
+            snapped += snap_to_hull(depth, &hull, v.camera.fx, f)?;
+        }
+        notes.push(format!(
+            "snapped to the hull (within {f} footprints): {snapped} of {samples} samples"
+        ));
+    }
+    // After snapping the hull holds every mask already; a pixel outside its mask has no depth
+    // and with carving casts no vote, so the masks need not come again.
+    let masks_pending = config.snap_to_hull.is_none() && free_space_votes;
+    for (v, depth) in inputs.views.iter().zip(&maps) {
+        tsdf.integrate(v.camera, depth, masks_pending.then_some(v.mask))?;
+    }
+    Ok((largest_component(&tsdf.extract_mesh()), notes))
 }
 
 #[cfg(test)]

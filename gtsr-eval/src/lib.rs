@@ -27,7 +27,10 @@ pub use carve::{CarveSettings, DepthMap, carve_grid, carve_mesh};
 pub use consistency::{ConsistencySettings, DepthView, filter_consistent};
 pub use depth::{DepthComparison, DepthMetrics, MeshDepth, MeshRaycaster};
 pub use error::{EvalError, Result};
-pub use extraction::{Fusion, MeshConfig};
+pub use extraction::{
+    DepthGeometry, Fusion, FusionInputs, FusionView, MasksAlone, MeshConfig, extract_mesh,
+    prepare_depth,
+};
 pub use hull::{masks_mesh, visual_hull};
 pub use marching::{Grid, marching_cubes};
 pub use mesh::{largest_component, sample_surface, weld};
@@ -36,6 +39,6 @@ pub use metrics::{
     SignedDistance, chamfer, chamfer_seen, chamfer_seen_and_whole, psnr,
     score_against_ground_truth, ssim,
 };
-pub use report::{ReportRow, markdown_table, seed_summary_table};
+pub use report::{ReportRow, RunMetrics, markdown_table, seed_summary_table};
 pub use timeline::{Timeline, TimelinePoint, plot_png};
 pub use tsdf::{TsdfVolume, default_voxel_for_radius};

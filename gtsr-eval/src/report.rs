@@ -1,10 +1,88 @@
-//! Markdown result tables.
+//! A run's `metrics.json` ([`RunMetrics`]) and markdown result tables.
 
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Result, write_atomic};
+use crate::depth::DepthMetrics;
+use crate::error::{EvalError, Result, write_atomic};
+use crate::metrics::MeshMetrics;
+
+/// What a training run writes to `metrics.json`, and what the benchmarks read back: one type
+/// for both. Fields added after the first runs read as their defaults from older files.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RunMetrics {
+    /// Training steps run.
+    pub iterations: usize,
+    /// Training time, evaluations off the clock.
+    pub train_seconds: f64,
+    /// Surface Gaussians at the end.
+    pub surface_gaussians: usize,
+    /// Interior Gaussians at the end.
+    pub interior_gaussians: usize,
+    /// Steps skipped for non-finite losses or gradients.
+    #[serde(default)]
+    pub skipped_steps: usize,
+    /// Raster passes over the run.
+    #[serde(default)]
+    pub raster_passes: usize,
+    /// Tile-splat pairs blended over the run (every pass; 0 in files from before they were
+    /// counted).
+    #[serde(default)]
+    pub tile_splats: u64,
+    /// Their mean per pass.
+    #[serde(default)]
+    pub tile_splats_per_pass: f64,
+    /// Surface Gaussians removed by the multi-view trim.
+    #[serde(default)]
+    pub trimmed_surface: usize,
+    /// Mean test PSNR of C_SH (dB).
+    pub test_psnr: f64,
+    /// Mean test SSIM of C_SH.
+    pub test_ssim: f64,
+    /// Mean test PSNR of C_SH inside the masks.
+    #[serde(default)]
+    pub test_psnr_masked: Option<f64>,
+    /// Mean test PSNR of C_PBR.
+    #[serde(default)]
+    pub test_psnr_pbr: Option<f64>,
+    /// The mesh against the ground truth the training cameras see.
+    #[serde(default)]
+    pub mesh: Option<MeshMetrics>,
+    /// The mesh against the whole ground truth, faces no camera sees included.
+    #[serde(default)]
+    pub mesh_whole_gt: Option<MeshMetrics>,
+    /// The masks alone at the dataset's resolution against the seen ground truth: the
+    /// baseline beside `mesh`.
+    #[serde(default)]
+    pub masks_alone: Option<MeshMetrics>,
+    /// Rendered test-view depth and normals against the ground-truth mesh's.
+    #[serde(default)]
+    pub test_depth: Option<DepthMetrics>,
+    /// Vertices of the mesh.
+    #[serde(default)]
+    pub mesh_vertices: usize,
+    /// Triangles of the mesh.
+    #[serde(default)]
+    pub mesh_triangles: usize,
+}
+
+impl RunMetrics {
+    /// Reads a run's `metrics.json`, naming the file in the error.
+    pub fn read(path: &Path) -> Result<RunMetrics> {
+        let text = std::fs::read_to_string(path).map_err(|e| EvalError::io(path, e))?;
+        serde_json::from_str(&text).map_err(|e| {
+            EvalError::InvalidArgument(format!("{}: not a run's metrics ({e})", path.display()))
+        })
+    }
+
+    /// Writes it as pretty JSON, atomically.
+    pub fn write(&self, path: &Path) -> Result<()> {
+        let text = serde_json::to_string_pretty(self)
+            .map_err(|e| EvalError::InvalidArgument(format!("serialising metrics: {e}")))?;
+        write_atomic(path, text.as_bytes())
+    }
+}
 
 /// One row of a results table; missing values print as `-`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

@@ -274,3 +274,110 @@ fn carving_checks_its_inputs() {
     assert!(carve_grid(&masks, &maps, HI, LO, VOXEL, &ok).is_err());
     assert!(carve_grid(&masks, &maps, LO, HI, 0.0, &ok).is_err());
 }
+
+#[test]
+fn the_extraction_recipe_carves_with_masks_and_fuses_a_tsdf_without() {
+    use gtsr_eval::{Fusion, FusionInputs, FusionView, MasksAlone, MeshConfig, extract_mesh};
+    let s = scene();
+    let views: Vec<FusionView> = s
+        .cams
+        .iter()
+        .zip(s.depths.iter().zip(&s.masks))
+        .map(|(camera, (depth, mask))| FusionView {
+            camera,
+            depth,
+            mask,
+        })
+        .collect();
+    let alone = MasksAlone::new(s.cams.iter().copied().zip(s.masks.clone()).collect())
+        .unwrap()
+        .expect("a hull");
+    let inputs = FusionInputs {
+        views: &views,
+        masked: true,
+        masks: Some(&alone),
+        footprint_cameras: &s.cams,
+        bounds: (LO, HI),
+        coarse: false,
+    };
+    // The default: the masks carved where the views agree, exactly `carve_mesh` on the masks'
+    // own grid.
+    let (carved, _) = extract_mesh(&MeshConfig::default(), &inputs).unwrap();
+    let direct = carve_mesh(
+        &alone.borrowed(),
+        &depth_maps(&s),
+        LO,
+        HI,
+        alone.voxel,
+        &CarveSettings::default(),
+    )
+    .unwrap();
+    assert_eq!(carved, direct);
+    // TSDF fusion of the same depth with the masks' hull (at a truncation short enough for
+    // the pit), and of the masks alone: the depth reaches the pit, the masks alone fill it.
+    let tsdf = MeshConfig {
+        fusion: Fusion::Tsdf,
+        voxel: Some(VOXEL),
+        truncation_footprints: Some(3.0),
+        ..MeshConfig::default()
+    };
+    let (fused, notes) = extract_mesh(&tsdf, &inputs).unwrap();
+    assert!(notes.is_empty());
+    let masks_only = MeshConfig {
+        fuse_depth: false,
+        ..tsdf.clone()
+    };
+    let (hull, _) = extract_mesh(&masks_only, &inputs).unwrap();
+    let (f, _) = score_against_ground_truth(&fused, &direct, &s.cams, Some(&alone.mesh)).unwrap();
+    let (h, _) = score_against_ground_truth(&hull, &direct, &s.cams, Some(&alone.mesh)).unwrap();
+    let (fb, hb) = (f.hull_blind.unwrap(), h.hull_blind.unwrap());
+    assert!(fb.blind < 0.5 * hb.blind, "fused {fb:?} masks {hb:?}");
+    // Settings that cannot work are refused, named.
+    let bad = MeshConfig {
+        depth_crossing: Some(2.0),
+        ..tsdf
+    };
+    let e = extract_mesh(&bad, &inputs).unwrap_err().to_string();
+    assert!(e.contains("depth_crossing"), "{e}");
+}
+
+#[test]
+fn depth_preparation_keeps_only_what_fusion_may_trust() {
+    use gtsr_eval::{DepthGeometry, prepare_depth};
+    let cam = Camera {
+        world_to_camera: glam::Affine3A::IDENTITY,
+        fx: 4.0,
+        fy: 4.0,
+        cx: 2.0,
+        cy: 1.0,
+        width: 4,
+        height: 2,
+    };
+    let n = 8;
+    let mut depth = vec![2.0f32; n];
+    depth[3] = f32::NAN;
+    let mut normal: Vec<f32> = (0..n).flat_map(|_| [0.0, 0.0, -1.0]).collect();
+    normal[3 * 5..3 * 5 + 3].copy_from_slice(&[1.0, 0.0, 0.0]); // grazing
+    let rays: Vec<f32> = (0..n).flat_map(|_| [0.0, 0.0, 1.0]).collect();
+    let plane = vec![2.0f32; n];
+    let mut coverage = vec![1.0f32; n];
+    coverage[6] = 0.2;
+    let mut mask = vec![1.0f32; n];
+    mask[1] = 0.0;
+    let geometry = DepthGeometry {
+        normal: &normal,
+        plane: &plane,
+        rays: &rays,
+        coverage: Some(&coverage),
+    };
+    prepare_depth(&cam, &mut depth, &geometry, &mask, false).unwrap();
+    assert_eq!(depth, [2.0, 0.0, 2.0, 0.0, 2.0, 0.0, 0.0, 2.0]);
+    let short = DepthGeometry {
+        normal: &normal[..6],
+        ..geometry
+    };
+    let e = prepare_depth(&cam, &mut depth, &short, &mask, false)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("normal"), "{e}");
+}

@@ -7,12 +7,9 @@ use anyhow::{Context, Result};
 use glam::Vec3;
 use gtsr_data::Scene;
 use gtsr_data::ply::{TriMesh, write_ply};
-use gtsr_eval::tsdf::{
-    default_truncation, drop_depth_edges, faces_ray, median_pixel_footprint, snap_to_hull,
-};
 use gtsr_eval::{
-    DepthComparison, DepthMetrics, DepthView, ImageRef, MeshMetrics, MeshRaycaster, Timeline,
-    TsdfVolume, largest_component, psnr, score_against_ground_truth, ssim,
+    DepthComparison, DepthMetrics, ImageRef, MeshMetrics, MeshRaycaster, Timeline, psnr,
+    score_against_ground_truth, ssim,
 };
 use gtsr_model::checkpoint::write_atomic;
 use gtsr_model::export::write_splat_ply;
@@ -24,52 +21,12 @@ use gtsr_model::views::ViewTensors;
 use gtsr_model::views::kernel_camera;
 use serde::Serialize;
 
-/// The masks at the dataset's own resolution, and what they give alone.
-pub struct NativeMasks {
-    /// Every training view's camera and mask at the dataset's resolution.
-    pub views: Vec<(gtsr_data::Camera, Vec<f32>)>,
-    /// The masks alone ([`gtsr_eval::masks_mesh`]): the baseline every mesh is held to, and
-    /// the bound the carving works inside.
-    pub mesh: TriMesh,
-    /// The grid spacing of [`NativeMasks::mesh`].
-    pub voxel: f32,
-}
-
-impl NativeMasks {
-    /// The masks of `views` (every one must have one) and their mesh; `None` when the masks
-    /// are empty.
-    pub fn new(views: &[gtsr_data::View]) -> Result<Option<Self>> {
-        let views: Vec<(gtsr_data::Camera, Vec<f32>)> = views
-            .iter()
-            .map(|v| {
-                v.mask
-                    .clone()
-                    .map(|m| (v.camera, m))
-                    .with_context(|| format!("view {} has no mask", v.name))
-            })
-            .collect::<Result<_>>()?;
-        let borrowed = Self::borrow(&views);
-        let Some((lo, hi)) = gtsr_eval::hull::hull_box(&borrowed)? else {
-            return Ok(None);
-        };
-        let voxel = gtsr_eval::hull::masks_voxel(&borrowed, lo, hi);
-        let Some(mesh) = gtsr_eval::masks_mesh(&borrowed, Some(voxel))? else {
-            return Ok(None);
-        };
-        Ok(Some(NativeMasks { views, mesh, voxel }))
-    }
-
-    fn borrow(views: &[(gtsr_data::Camera, Vec<f32>)]) -> Vec<(gtsr_data::Camera, &[f32])> {
-        views.iter().map(|(c, m)| (*c, m.as_slice())).collect()
-    }
-}
-
 /// Mesh extraction: the settings and what the scene gives them.
 pub struct MeshSettings {
     /// The settings (`config.json`'s `mesh`).
     pub config: gtsr_eval::MeshConfig,
     /// The masks at the dataset's resolution (every training view has one).
-    pub masks: Option<NativeMasks>,
+    pub masks: Option<gtsr_eval::MasksAlone>,
     /// The training views at the fusion resolution (cameras and masks), rendered again for the
     /// mesh; empty: the training views as trained.
     pub fusion_views: Vec<gtsr_data::View>,
@@ -168,10 +125,9 @@ fn fusion_geometry(
     })
 }
 
-/// The mesh: with masks and [`gtsr_eval::Fusion::Carve`], the native masks carved by the rendered
-/// depth ([`gtsr_eval::carve`]); otherwise TSDF fusion of the unbiased depth of every training
-/// view (depth kept where the mask, or without masks the surface coverage, is at least 0.5).
-/// Marching cubes, largest component.
+/// The mesh: every fusion view's depth rendered and prepared ([`fusion_depth`]), then
+/// gtsr-eval's recipe ([`gtsr_eval::extract_mesh`]: with masks and carving the native masks
+/// carved by the depth, otherwise a TSDF). The notes of the recipe are printed unless `coarse`.
 pub fn extract_mesh(
     trainer: &Trainer,
     scene: &Scene,
@@ -184,146 +140,54 @@ pub fn extract_mesh(
     } else {
         settings.fusion_views.iter().collect()
     };
-    if settings.config.fusion == gtsr_eval::Fusion::Carve
-        && let Some(masks) = &settings.masks
-    {
-        if !settings.config.fuse_depth {
-            return Ok(masks.mesh.clone());
-        }
-        let (lo, hi) = settings
-            .bounds
-            .context("the carving box comes from the masks")?;
-        // The full grid also in the in-run evaluations, so that their chamfer compares with
-        // the final one (the masks' own mesh is on this grid).
-        let voxel = settings.config.carve_voxel.unwrap_or(masks.voxel);
-        let maps = host_views
-            .iter()
-            .enumerate()
-            .map(|(k, data)| Ok(fusion_depth(trainer, &model, k, data, settings)?.0))
-            .collect::<Result<Vec<_>>>()?;
-        let depths: Vec<gtsr_eval::DepthMap> = host_views
-            .iter()
-            .zip(&maps)
-            .map(|(v, depth)| gtsr_eval::DepthMap {
-                camera: &v.camera,
-                depth,
-            })
-            .collect();
-        return Ok(gtsr_eval::carve_mesh(
-            &NativeMasks::borrow(&masks.views),
-            &depths,
-            lo,
-            hi,
-            voxel,
-            &settings.config.carve(),
-        )?);
-    }
-    let (lo, hi) = settings
-        .bounds
-        .unwrap_or_else(|| mesh_bounds(&trainer.model));
-    let radius = 0.5 * (hi - lo).max_element();
-    let mut voxel = settings
-        .config
-        .voxel
-        .unwrap_or_else(|| gtsr_eval::default_voxel_for_radius(radius));
-    if coarse {
-        voxel *= 2.5;
-    }
-    let cameras: Vec<&gtsr_data::Camera> = scene.train.iter().map(|v| &v.camera).collect();
     let masked = host_views.iter().all(|v| v.mask.is_some());
-    // Free-space votes from outside the masks: with carving they feed the hull field; without
-    // carving on a masked scene (depth alone, `--no-silhouette-carving`) there are none, as in
-    // PGSR's and 2DGS's TSDF fusion: each such vote is +truncation on every voxel along the
-    // ray, and near the silhouettes it pulled the surface outward (wax_knot's full model, 64 px:
-    // chamfer x1e3 14.0 with them). Without masks, the pixels the render leaves empty vote.
-    let free_space_votes = settings.config.silhouette_carving || !masked;
-    if !(settings.config.fuse_depth || (masked && settings.config.silhouette_carving)) {
-        anyhow::bail!("fusing silhouettes alone needs a mask on every training view and carving");
-    }
-    let footprint = || median_pixel_footprint(cameras.iter().copied(), 0.5 * (lo + hi));
-    let trunc = match (
-        settings.config.truncation,
-        settings.config.truncation_footprints,
-    ) {
-        (Some(t), _) => t,
-        (None, Some(f)) => f * footprint(),
-        (None, None) => default_truncation(radius, footprint(), free_space_votes),
-    }
-    .max(voxel);
-    let mut tsdf = TsdfVolume::new(lo, hi, voxel, trunc)?;
-    if settings.config.silhouette_carving && masked {
-        // The object lies inside every mask: the surface stays inside the masks' hull.
-        tsdf = tsdf.with_silhouette_carving();
-        if settings.config.hull_inside_distance {
-            tsdf = tsdf.with_hull_inside_distance();
+    let maps = host_views
+        .iter()
+        .enumerate()
+        .map(|(k, data)| {
+            if settings.config.fuse_depth {
+                fusion_depth(trainer, &model, k, data, settings)
+            } else {
+                let mask = data
+                    .mask
+                    .clone()
+                    .context("fusing the masks alone needs masks")?;
+                Ok((Vec::new(), mask))
+            }
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let views: Vec<gtsr_eval::FusionView> = host_views
+        .iter()
+        .zip(&maps)
+        .map(|(v, (depth, mask))| gtsr_eval::FusionView {
+            camera: &v.camera,
+            depth,
+            mask,
+        })
+        .collect();
+    let cameras = training_cameras(scene);
+    let inputs = gtsr_eval::FusionInputs {
+        views: &views,
+        masked,
+        masks: settings.masks.as_ref(),
+        footprint_cameras: &cameras,
+        bounds: settings
+            .bounds
+            .unwrap_or_else(|| mesh_bounds(&trainer.model)),
+        coarse,
+    };
+    let (mesh, notes) = gtsr_eval::extract_mesh(&settings.config, &inputs)?;
+    if !coarse {
+        for n in notes {
+            println!("{n}");
         }
     }
-    if !settings.config.fuse_depth {
-        // Silhouettes alone (every view has a mask, checked above): nothing to render.
-        for data in &host_views {
-            let n = data.camera.width as usize * data.camera.height as usize;
-            tsdf.integrate(&data.camera, &vec![0.0; n], data.mask.as_deref())?;
-        }
-        return Ok(largest_component(&tsdf.extract_mesh()));
-    }
-    let mut maps = Vec::with_capacity(host_views.len());
-    for (k, data) in host_views.iter().enumerate() {
-        maps.push(fusion_depth(trainer, &model, k, data, settings)?);
-    }
-    if let Some(c) = &settings.config.depth_consistency {
-        let views: Vec<DepthView> = host_views
-            .iter()
-            .zip(&maps)
-            .map(|(v, (depth, _))| DepthView {
-                camera: &v.camera,
-                depth,
-            })
-            .collect();
-        let (filtered, stats) = gtsr_eval::filter_consistent(&views, c)?;
-        if !coarse {
-            println!(
-                "depth consistency ({} of {} neighbours within {} footprints): dropped {} of {} \
-                 samples",
-                c.min_agree, c.neighbours, c.footprints, stats.dropped, stats.samples
-            );
-        }
-        for ((depth, _), f) in maps.iter_mut().zip(filtered) {
-            *depth = f;
-        }
-    }
-    if let Some(f) = settings.config.snap_to_hull {
-        if !(masked && settings.config.silhouette_carving) {
-            anyhow::bail!("snapping the depth to the hull needs masks and silhouette carving");
-        }
-        // The hull from every mask first (depth 0 measures nothing), then each view's depth
-        // against it.
-        for (data, (depth, mask)) in host_views.iter().zip(&maps) {
-            tsdf.integrate(&data.camera, &vec![0.0; depth.len()], Some(mask))?;
-        }
-        let (mut snapped, mut samples) = (0, 0);
-        for (data, (depth, _)) in host_views.iter().zip(maps.iter_mut()) {
-            let hull = tsdf
-                .hull_depth(&data.camera)
-                .context("silhouette carving is on, so the volume has a hull")?;
-            samples += depth.iter().filter(|d| **d > 0.0).count();
-            snapped += snap_to_hull(depth, &hull, data.camera.fx, f)?;
-        }
-        if !coarse {
-            println!("snapped to the hull (within {f} footprints): {snapped} of {samples} samples");
-        }
-    }
-    // After snapping the hull holds every mask already; a pixel outside its mask has no depth
-    // (`fusion_depth`) and with carving casts no TSDF vote, so the masks need not come again.
-    let masks_pending = settings.config.snap_to_hull.is_none() && free_space_votes;
-    for (data, (depth, mask)) in host_views.iter().zip(&maps) {
-        tsdf.integrate(&data.camera, depth, masks_pending.then_some(&mask[..]))?;
-    }
-    Ok(largest_component(&tsdf.extract_mesh()))
+    Ok(mesh)
 }
 
-/// One fusion view's depth map as fused (zero where not fused: grazing, outside the mask or
-/// without masks the coverage, on a depth edge) and its mask (without masks, the coverage at
-/// least 0.5). `k` indexes the trainer's views when [`MeshSettings::fusion_views`] is empty.
+/// One fusion view's depth map as fused (zero where not fused; [`gtsr_eval::prepare_depth`])
+/// and its mask (without masks, the coverage at least 0.5). `k` indexes the trainer's views
+/// when [`MeshSettings::fusion_views`] is empty.
 fn fusion_depth(
     trainer: &Trainer,
     model: &Model,
@@ -347,14 +211,7 @@ fn fusion_depth(
     let rays = host_vec(rays);
     let mut depth = host_vec(g.depth);
     let cov = host_vec(g.coverage);
-    // Grazing pixels: their unbiased depth runs far behind the surface ([`faces_ray`]).
-    for (p, d) in depth.iter_mut().enumerate() {
-        let n = Vec3::from_slice(&normal[3 * p..3 * p + 3]);
-        let r = Vec3::from_slice(&rays[3 * p..3 * p + 3]);
-        if !faces_ray(n, r) {
-            *d = 0.0;
-        }
-    }
+    let plane = host_vec(g.plane);
     let mask: Vec<f32> = match &data.mask {
         Some(m) => m.clone(),
         None => cov
@@ -362,15 +219,14 @@ fn fusion_depth(
             .map(|c| if *c >= 0.5 { 1.0 } else { 0.0 })
             .collect(),
     };
-    for (d, (c, m)) in depth.iter_mut().zip(cov.iter().zip(&mask)) {
-        if *c < 0.5 || *m < 0.5 || !d.is_finite() {
-            *d = 0.0;
-        }
-    }
-    let plane = host_vec(g.plane);
-    let (w, h) = (data.camera.width as usize, data.camera.height as usize);
-    drop_depth_edges(&mut depth, &normal, &plane, &rays, w, h, data.camera.fx)
-        .with_context(|| format!("dropping the depth edges of {}", data.name))?;
+    let geometry = gtsr_eval::DepthGeometry {
+        normal: &normal,
+        plane: &plane,
+        rays: &rays,
+        coverage: Some(&cov),
+    };
+    gtsr_eval::prepare_depth(&data.camera, &mut depth, &geometry, &mask, true)
+        .with_context(|| format!("preparing the depth of {}", data.name))?;
     Ok((depth, mask))
 }
 
@@ -582,37 +438,6 @@ fn write_strips(
     Ok(tests.len())
 }
 
-#[derive(Serialize)]
-struct Metrics {
-    iterations: usize,
-    train_seconds: f64,
-    surface_gaussians: usize,
-    interior_gaussians: usize,
-    skipped_steps: usize,
-    raster_passes: usize,
-    /// Tile-splat pairs blended over the run (every pass), and their mean per pass: what the
-    /// passes cost, beside their number.
-    tile_splats: u64,
-    tile_splats_per_pass: f64,
-    /// Surface Gaussians removed by the multi-view trim (`densify.trim_every`).
-    trimmed_surface: usize,
-    test_psnr: f64,
-    test_ssim: f64,
-    test_psnr_masked: Option<f64>,
-    test_psnr_pbr: Option<f64>,
-    /// Against the ground-truth surface the training cameras see.
-    mesh: Option<MeshMetrics>,
-    /// Against the whole ground truth, faces no camera sees included.
-    mesh_whole_gt: Option<MeshMetrics>,
-    /// The masks alone at the dataset's resolution against the seen ground truth: the
-    /// baseline beside `mesh`.
-    masks_alone: Option<MeshMetrics>,
-    /// Rendered test-view depth and normals against the ground-truth mesh's.
-    test_depth: Option<DepthMetrics>,
-    mesh_vertices: usize,
-    mesh_triangles: usize,
-}
-
 /// Final outputs: mesh, splats, renders, metrics, error-against-time plot.
 #[allow(clippy::too_many_arguments)]
 pub fn finish(
@@ -649,7 +474,7 @@ pub fn finish(
         }
         _ => None,
     };
-    let metrics = Metrics {
+    let metrics = gtsr_eval::RunMetrics {
         iterations: trainer.step,
         train_seconds,
         surface_gaussians: ns,
@@ -671,7 +496,10 @@ pub fn finish(
         mesh_vertices: mesh.positions.len(),
         mesh_triangles: mesh.triangles.len(),
     };
-    write_json(&out.join("metrics.json"), &metrics)?;
+    let path = out.join("metrics.json");
+    metrics
+        .write(&path)
+        .with_context(|| format!("writing {}", path.display()))?;
     let plot = out.join("error_vs_time.png");
     if !timeline.points.is_empty() {
         gtsr_eval::plot_png(&plot, &[("gtsr", timeline)])

@@ -276,7 +276,7 @@ fn native_masks(
     data_dir: &Path,
     opts: &LoadOptions,
     scene: &Scene,
-) -> Result<Option<outputs::NativeMasks>> {
+) -> Result<Option<gtsr_eval::MasksAlone>> {
     if scene.train.iter().any(|v| v.mask.is_none()) {
         return Ok(None);
     }
@@ -302,12 +302,21 @@ fn native_masks(
         }
         &native.train
     };
-    let masks = outputs::NativeMasks::new(views)?;
+    let views = views
+        .iter()
+        .map(|v| {
+            v.mask
+                .clone()
+                .map(|m| (v.camera, m))
+                .with_context(|| format!("view {} has no mask", v.name))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let masks = gtsr_eval::MasksAlone::new(views)?;
     if let Some(m) = &masks {
         println!(
             "masks alone at {}x{}: {} triangles, voxel {:.4} ({:.1} s)",
-            views[0].width(),
-            views[0].height(),
+            m.views[0].0.width,
+            m.views[0].0.height,
             m.mesh.triangles.len(),
             m.voxel,
             t0.elapsed().as_secs_f64()

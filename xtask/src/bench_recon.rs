@@ -80,54 +80,29 @@ fn target_dir() -> PathBuf {
     std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| PathBuf::from("target"), PathBuf::from)
 }
 
-#[derive(serde::Deserialize)]
-struct Metrics {
-    iterations: usize,
-    train_seconds: f64,
-    test_psnr: f64,
-    test_ssim: f64,
-    surface_gaussians: u64,
-    interior_gaussians: u64,
-    mesh: Option<MeshM>,
-    mesh_whole_gt: Option<MeshM>,
-    #[serde(default)]
-    test_depth: Option<gtsr_eval::DepthMetrics>,
-    /// Absent in runs from before gtsr-train counted them.
-    #[serde(default)]
-    tile_splats: Option<u64>,
-}
+/// A gtsr-train run's `metrics.json`.
+type Metrics = gtsr_eval::RunMetrics;
 
-impl Metrics {
-    /// A table row of this run's mesh and test-view geometry (the rest left empty): for the
-    /// crossing-depth fusions the test-view depth is the crossing depth the run fused.
-    fn geometry_row(&self, label: String, scene: &str) -> ReportRow {
-        ReportRow {
-            method: label,
-            scene: scene.into(),
-            chamfer: self.mesh.as_ref().map(|x| x.chamfer),
-            chamfer_whole_gt: self.mesh_whole_gt.as_ref().map(|x| x.chamfer),
-            hull_blind: self
-                .mesh
-                .as_ref()
-                .and_then(|x| x.hull_blind.as_ref())
-                .map(|b| b.blind),
-            fscore: self.mesh.as_ref().map(|x| x.fscore),
-            depth_err: self.test_depth.map(|d| d.depth_median_abs),
-            depth_bias: self.test_depth.map(|d| d.depth_mean_signed),
-            normal_err_deg: self.test_depth.map(|d| d.normal_mean_deg),
-            ..ReportRow::default()
-        }
+/// A table row of a run's mesh and test-view geometry (the rest left empty): for the
+/// crossing-depth fusions the test-view depth is the crossing depth the run fused.
+fn geometry_row(m: &Metrics, label: String, scene: &str) -> ReportRow {
+    ReportRow {
+        method: label,
+        scene: scene.into(),
+        chamfer: m.mesh.as_ref().map(|x| x.chamfer),
+        chamfer_whole_gt: m.mesh_whole_gt.as_ref().map(|x| x.chamfer),
+        hull_blind: m
+            .mesh
+            .as_ref()
+            .and_then(|x| x.hull_blind.as_ref())
+            .map(|b| b.blind),
+        fscore: m.mesh.as_ref().map(|x| x.fscore),
+        depth_err: m.test_depth.map(|d| d.depth_median_abs),
+        depth_bias: m.test_depth.map(|d| d.depth_mean_signed),
+        normal_err_deg: m.test_depth.map(|d| d.normal_mean_deg),
+        ..ReportRow::default()
     }
 }
-
-#[derive(serde::Deserialize)]
-struct MeshM {
-    chamfer: f64,
-    fscore: f64,
-    #[serde(default)]
-    hull_blind: Option<gtsr_eval::HullBlind>,
-}
-
 /// A scene folder's name, as the tables and output folders use it.
 pub(crate) fn scene_name(scene_dir: &Path) -> String {
     scene_dir
@@ -189,11 +164,7 @@ fn masks_row(scene_dir: &Path, name: &str, out: &Path) -> Result<ReportRow> {
 
 /// The `metrics.json` of a gtsr-train run.
 fn read_metrics(run: &Path) -> Result<Metrics> {
-    let path = run.join("metrics.json");
-    serde_json::from_str(
-        &std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?,
-    )
-    .with_context(|| format!("parsing {}", path.display()))
+    Ok(Metrics::read(&run.join("metrics.json"))?)
 }
 
 /// Whether `run` holds a finished gtsr-train run of `iterations` steps.
@@ -300,7 +271,7 @@ fn derived_row(
     )?;
     Ok(ReportRow {
         seconds: Some(t0.elapsed().as_secs_f64()),
-        ..m.geometry_row(label, name)
+        ..geometry_row(&m, label, name)
     })
 }
 
@@ -398,12 +369,10 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                     psnr: Some(m.test_psnr),
                     ssim: Some(m.test_ssim),
                     seconds: Some(m.train_seconds),
-                    gaussians: Some(m.surface_gaussians + m.interior_gaussians),
-                    tile_splats_per_step: m
-                        .tile_splats
-                        .filter(|_| m.iterations > 0)
-                        .map(|t| t as f64 / m.iterations as f64),
-                    ..m.geometry_row(label.clone(), &name)
+                    gaussians: Some((m.surface_gaussians + m.interior_gaussians) as u64),
+                    tile_splats_per_step: (m.tile_splats > 0 && m.iterations > 0)
+                        .then(|| m.tile_splats as f64 / m.iterations as f64),
+                    ..geometry_row(&m, label.clone(), &name)
                 };
                 trained.push((
                     seed,

@@ -1,9 +1,10 @@
 //! `cargo xtask fusion-ceiling`: what the TSDF fusion of gtsr-train makes of *perfect* depth.
 //!
 //! The ground-truth mesh is ray cast through every training pixel (at the training
-//! resolution) and its depth maps go through the fusion gtsr-train uses (the same box, voxel,
-//! masks, silhouette carving, default truncation, grazing cut and depth-edge cut, all from
-//! `gtsr_eval::tsdf`) at several truncations. The
+//! resolution) and its depth maps go through the fusion gtsr-train uses (the same depth
+//! preparation and recipe, `gtsr_eval::prepare_depth` and `gtsr_eval::extract_mesh`: box,
+//! voxel, masks, silhouette carving, default truncation, grazing and depth-edge cuts) at
+//! several truncations. The
 //! chamfer of those meshes is the best any rendered depth can give through this fusion at
 //! this resolution: when it does not beat the masks alone, no method can beat the visual hull
 //! by its depth maps, however good they are. `--biases` shifts the true depth behind (or in
@@ -17,12 +18,11 @@ use clap::Args;
 use glam::Vec3;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_eval::tsdf::{
-    DEPTH_ONLY_TRUNCATION_FOOTPRINTS, default_truncation, drop_depth_edges, faces_ray,
-    median_pixel_footprint,
+    DEPTH_ONLY_TRUNCATION_FOOTPRINTS, default_truncation, median_pixel_footprint,
 };
 use gtsr_eval::{
-    MeshRaycaster, TsdfVolume, default_voxel_for_radius, largest_component,
-    score_against_ground_truth,
+    DepthGeometry, Fusion, FusionInputs, FusionView, MasksAlone, MeshConfig, MeshRaycaster,
+    default_voxel_for_radius, extract_mesh, score_against_ground_truth,
 };
 
 use crate::bench_recon::{ground_truth, scene_name};
@@ -139,8 +139,8 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
         scene_dir.display()
     );
 
-    // The ground truth's depth per training view, masked, without grazing pixels and without
-    // depth edges, as gtsr-train fuses rendered depth.
+    // The ground truth's depth per training view, prepared as gtsr-train prepares rendered
+    // depth (masked, without grazing pixels and without depth edges).
     let depths: Vec<Vec<f32>> = scene
         .train
         .iter()
@@ -154,28 +154,19 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
                     c.camera_direction(i + 0.5, j + 0.5)
                 })
                 .collect();
-            let mut depth: Vec<f32> = (0..md.depth.len())
-                .map(|p| {
-                    let keep =
-                        mask[p] >= 0.5 && md.depth[p] > 0.0 && faces_ray(md.normal[p], rays[p]);
-                    if keep { md.depth[p] } else { 0.0 }
-                })
-                .collect();
             let plane: Vec<f32> = (0..md.depth.len())
                 .map(|p| md.depth[p] * -md.normal[p].dot(rays[p]))
                 .collect();
             let flat = |v: &[Vec3]| v.iter().flat_map(|x| x.to_array()).collect::<Vec<f32>>();
-            if !args.keep_edges {
-                drop_depth_edges(
-                    &mut depth,
-                    &flat(&md.normal),
-                    &plane,
-                    &flat(&rays),
-                    md.width,
-                    md.height,
-                    c.fx,
-                )?;
-            }
+            let (normal, rays) = (flat(&md.normal), flat(&rays));
+            let mut depth = md.depth.clone();
+            let geometry = DepthGeometry {
+                normal: &normal,
+                plane: &plane,
+                rays: &rays,
+                coverage: None,
+            };
+            gtsr_eval::prepare_depth(c, &mut depth, &geometry, mask, !args.keep_edges)?;
             Ok(depth)
         })
         .collect::<Result<_>>()?;
@@ -248,29 +239,36 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
     }
     for (n, var) in variants.iter().enumerate() {
         let t0 = Instant::now();
-        let mut tsdf = TsdfVolume::new(lo, hi, voxel, var.truncation)?;
-        if var.carving {
-            tsdf = tsdf.with_silhouette_carving();
-            if args.hull_inside_distance {
-                tsdf = tsdf.with_hull_inside_distance();
-            }
-        }
-        for (v, d) in scene.train.iter().zip(&depths) {
-            // Depth 0 is no measurement and stays so; the rest move by the bias.
-            let depth: Vec<f32> = d
-                .iter()
-                .map(|&z| {
-                    if var.depth && z > 0.0 {
-                        (z + var.bias).max(0.0)
-                    } else {
-                        0.0
-                    }
-                })
-                .collect();
-            let mask = v.mask.as_deref().expect("checked above");
-            tsdf.integrate(&v.camera, &depth, var.carving.then_some(mask))?;
-        }
-        let mesh = largest_component(&tsdf.extract_mesh());
+        // Depth 0 is no measurement and stays so; the rest move by the bias.
+        let biased = biased_depths(&depths, var.bias);
+        let views: Vec<FusionView> = scene
+            .train
+            .iter()
+            .zip(&biased)
+            .map(|(v, depth)| FusionView {
+                camera: &v.camera,
+                depth,
+                mask: v.mask.as_deref().expect("checked above"),
+            })
+            .collect();
+        let config = MeshConfig {
+            fusion: Fusion::Tsdf,
+            voxel: Some(voxel),
+            truncation: Some(var.truncation),
+            silhouette_carving: var.carving,
+            fuse_depth: var.depth,
+            hull_inside_distance: var.carving && args.hull_inside_distance,
+            ..MeshConfig::default()
+        };
+        let inputs = FusionInputs {
+            views: &views,
+            masked: true,
+            masks: None,
+            footprint_cameras: &eyes,
+            bounds: (lo, hi),
+            coarse: false,
+        };
+        let (mesh, _) = extract_mesh(&config, &inputs)?;
         if mesh.triangles.is_empty() {
             bail!("{name}: {}: empty mesh", var.label);
         }
@@ -318,9 +316,10 @@ fn carve_rows(
         .filter_map(|v| v.mask.as_deref().map(|m| (v.camera, m)))
         .collect();
     let (lo, hi) = gtsr_eval::hull::hull_box(&masks)?.context("empty masks")?;
-    let voxel = gtsr_eval::hull::masks_voxel(&masks, lo, hi);
     let t0 = Instant::now();
-    let hull = gtsr_eval::masks_mesh(&masks, Some(voxel))?.context("empty masks")?;
+    let alone = MasksAlone::new(masks.iter().map(|(c, m)| (*c, m.to_vec())).collect())?
+        .context("empty masks")?;
+    let hull = alone.mesh.clone();
     let mut rows = Vec::new();
     let mut score = |label: String, mesh: &gtsr_data::ply::TriMesh, secs: f64| -> Result<()> {
         let (seen, whole) = score_against_ground_truth(mesh, gt, eyes, Some(&hull))?;
@@ -349,31 +348,35 @@ fn carve_rows(
         &hull,
         t0.elapsed().as_secs_f64(),
     )?;
-    let settings = gtsr_eval::CarveSettings {
-        min_views: args.carve_views,
-        margin_footprints: args.carve_margin,
-        min_free_ratio: args.carve_free_ratio,
+    let config = MeshConfig {
+        fusion: Fusion::Carve,
+        carve_views: args.carve_views as u64,
+        carve_margin: args.carve_margin,
+        carve_free_ratio: args.carve_free_ratio,
+        ..MeshConfig::default()
     };
     for bias in std::iter::once(0.0).chain(args.biases.iter().copied()) {
         let t0 = Instant::now();
-        let biased: Vec<Vec<f32>> = depths
-            .iter()
-            .map(|d| {
-                d.iter()
-                    .map(|&z| if z > 0.0 { (z + bias).max(0.0) } else { 0.0 })
-                    .collect()
-            })
-            .collect();
-        let maps: Vec<gtsr_eval::DepthMap> = scene
+        let biased = biased_depths(depths, bias);
+        let views: Vec<FusionView> = scene
             .train
             .iter()
             .zip(&biased)
-            .map(|(v, depth)| gtsr_eval::DepthMap {
+            .map(|(v, depth)| FusionView {
                 camera: &v.camera,
                 depth,
+                mask: v.mask.as_deref().expect("checked by the caller"),
             })
             .collect();
-        let mesh = gtsr_eval::carve_mesh(&masks, &maps, lo, hi, voxel, &settings)?;
+        let inputs = FusionInputs {
+            views: &views,
+            masked: true,
+            masks: Some(&alone),
+            footprint_cameras: eyes,
+            bounds: (lo, hi),
+            coarse: false,
+        };
+        let (mesh, _) = extract_mesh(&config, &inputs)?;
         score(
             format!("masks carved by the true depth {bias:+} (gtsr-train's default extraction)"),
             &mesh,
@@ -381,6 +384,18 @@ fn carve_rows(
         )?;
     }
     Ok(rows)
+}
+
+/// The depth maps moved by `bias` along the view (0, no measurement, stays 0).
+fn biased_depths(depths: &[Vec<f32>], bias: f32) -> Vec<Vec<f32>> {
+    depths
+        .iter()
+        .map(|d| {
+            d.iter()
+                .map(|&z| if z > 0.0 { (z + bias).max(0.0) } else { 0.0 })
+                .collect()
+        })
+        .collect()
 }
 
 /// Runs the experiment and writes `out/fusion-ceiling.md`.
