@@ -85,7 +85,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let train_s = t0.elapsed().as_secs_f64();
     let (mut p_sh, mut p_pbr, mut n) = (0.0, 0.0, 0);
-    let model = trainer.model.detached();
+    let model = trainer.model().detached();
     for (i, v) in scene.test.iter().enumerate() {
         let vt = ViewTensors::new(v, i, &device)?;
         let opts = trainer.render_options(iterations, false);
@@ -109,12 +109,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     println!(
         "{preset_name} init={:?} {iterations} steps in {train_s:.1} s ({:.0} ms/step); skipped {}; test PSNR C_SH {:.2} dB, C_PBR {:.2} dB over {n} views; gaussians {:?}",
-        trainer.config.init,
+        trainer.config().init,
         train_s * 1e3 / iterations as f64,
-        trainer.counters.skipped_steps,
+        trainer.counters().skipped_steps,
         p_sh / n.max(1) as f64,
         p_pbr / n.max(1) as f64,
-        trainer.model.counts()
+        trainer.model().counts()
     );
     Ok(())
 }

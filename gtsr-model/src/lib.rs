@@ -12,7 +12,7 @@
 //! - [`losses`]: photometric (L1 + SSIM), single- and multi-view geometry, interior
 //!   containment, smoothness, flattening, mask;
 //! - [`config`]: components (what to leave out), presets, `auto`, weights and schedule;
-//! - [`trainer`], [`optim`], [`densify`]: the step, Adam with resizable state, density control;
+//! - [`trainer`]: the step, Adam with resizable state (module `optim`), density control (`densify`);
 //! - [`checkpoint`], [`export`]: saving and resuming, 3DGS-compatible PLY.
 
 #![warn(missing_docs)]
@@ -21,7 +21,7 @@
 
 pub mod checkpoint;
 pub mod config;
-pub mod densify;
+mod densify;
 pub mod error;
 pub mod export;
 pub mod gaussians;
@@ -29,7 +29,7 @@ pub mod geometry;
 mod layout;
 pub mod losses;
 pub mod model;
-pub mod optim;
+mod optim;
 pub mod pbr;
 pub mod sh;
 pub mod trainer;

@@ -143,25 +143,75 @@ pub struct Forward {
 /// A model, its optimiser state and the training views.
 pub struct Trainer {
     /// The configuration.
-    pub config: TrainConfig,
+    pub(crate) config: TrainConfig,
     /// The model (autodiff leaves).
-    pub model: Model,
+    pub(crate) model: Model,
     /// Training views on the device.
-    pub views: Vec<ViewTensors>,
+    pub(crate) views: Vec<ViewTensors>,
     /// Neighbours of each training view (multi-view term).
-    pub neighbours: Vec<Vec<usize>>,
+    pub(crate) neighbours: Vec<Vec<usize>>,
     /// Scene extent (position learning rate and densification scale with it).
-    pub extent: f64,
-    /// Next step to run.
-    pub step: usize,
+    pub(crate) extent: f64,
+    /// Steps run so far (the next step's index).
+    pub(crate) step: usize,
     /// Run counters.
-    pub counters: Counters,
+    pub(crate) counters: Counters,
     pub(crate) opt_surface: SetOptimizer,
     pub(crate) opt_interior: SetOptimizer,
     pub(crate) opt_light: SetOptimizer,
     pub(crate) stats_surface: DensifyStats,
     pub(crate) stats_interior: DensifyStats,
     pub(crate) device: Device,
+}
+
+impl Trainer {
+    /// The configuration.
+    pub fn config(&self) -> &TrainConfig {
+        &self.config
+    }
+
+    /// The model (autodiff leaves).
+    pub fn model(&self) -> &Model {
+        &self.model
+    }
+
+    /// The training views on the device.
+    pub fn views(&self) -> &[ViewTensors] {
+        &self.views
+    }
+
+    /// The multi-view neighbours of each training view.
+    pub fn neighbours(&self) -> &[Vec<usize>] {
+        &self.neighbours
+    }
+
+    /// The scene extent the position learning rate and densification scale with.
+    pub fn extent(&self) -> f64 {
+        self.extent
+    }
+
+    /// Steps run so far: the index of the next step.
+    pub fn steps_done(&self) -> usize {
+        self.step
+    }
+
+    /// The run's counters.
+    pub fn counters(&self) -> &Counters {
+        &self.counters
+    }
+
+    /// The model, to change by hand (tests and tools).
+    #[cfg(any(test, feature = "test-utils"))]
+    pub fn model_mut(&mut self) -> &mut Model {
+        &mut self.model
+    }
+
+    /// Moves the schedule to `step` without training (tests and tools; a checkpoint restores
+    /// the step of its run).
+    #[cfg(any(test, feature = "test-utils"))]
+    pub fn seek(&mut self, step: usize) {
+        self.step = step;
+    }
 }
 
 impl std::fmt::Debug for Trainer {

@@ -49,4 +49,7 @@ pub use api::{
 };
 pub use camera::{Camera, CameraError};
 pub use config::{AlphaCutoff, BLUR_PX2, PIXEL_BOX_BLUR_PX2, SplatConfig, TILE_PIXELS, TILE_SIZE};
+
+/// Seeded test and benchmark scenes (feature `test-utils`).
+#[cfg(feature = "test-utils")]
 pub mod scenes;

@@ -134,7 +134,7 @@ pub fn extract_mesh(
     settings: &MeshSettings,
     coarse: bool,
 ) -> Result<TriMesh> {
-    let model = trainer.model.detached();
+    let model = trainer.model().detached();
     let host_views: Vec<&gtsr_data::View> = if settings.fusion_views.is_empty() {
         scene.train.iter().collect()
     } else {
@@ -173,7 +173,7 @@ pub fn extract_mesh(
         footprint_cameras: &cameras,
         bounds: settings
             .bounds
-            .unwrap_or_else(|| mesh_bounds(&trainer.model)),
+            .unwrap_or_else(|| mesh_bounds(trainer.model())),
         coarse,
     };
     let (mesh, notes) = gtsr_eval::extract_mesh(&settings.config, &inputs)?;
@@ -196,13 +196,13 @@ fn fusion_depth(
     settings: &MeshSettings,
 ) -> Result<(Vec<f32>, Vec<f32>)> {
     let (g, rays) = if settings.fusion_views.is_empty() {
-        let v = &trainer.views[k];
+        let v = &trainer.views()[k];
         (
             fusion_geometry(model, &v.camera, &v.rays, settings)?,
             v.rays.clone(),
         )
     } else {
-        let device = trainer.views[0].rays.device();
+        let device = trainer.views()[0].rays.device();
         let camera = kernel_camera(&data.camera, &data.name)?;
         let rays = pixel_rays(&camera, &device);
         (fusion_geometry(model, &camera, &rays, settings)?, rays)
@@ -243,8 +243,8 @@ pub fn evaluate(
     coarse: bool,
 ) -> Result<Evaluation> {
     let t0 = Instant::now();
-    let model = trainer.model.detached();
-    let opts = trainer.render_options(trainer.step, false);
+    let model = trainer.model().detached();
+    let opts = trainer.render_options(trainer.steps_done(), false);
     let (mut p, mut s, mut pm, mut pp, mut n, mut nm, mut np) =
         (0.0, 0.0, 0.0, 0.0, 0usize, 0usize, 0usize);
     for (v, data) in tests.iter().zip(&scene.test) {
@@ -269,7 +269,7 @@ pub fn evaluate(
         }
     }
     let (mesh, mesh_whole_gt, extracted) = match gt {
-        Some(gt) if trainer.is_stage2(trainer.step.saturating_sub(1)) => {
+        Some(gt) if trainer.is_stage2(trainer.steps_done().saturating_sub(1)) => {
             let m = extract_mesh(trainer, scene, settings, coarse)?;
             if m.triangles.is_empty() {
                 (None, None, Some(m))
@@ -357,7 +357,7 @@ pub fn dataset_frame(scene: &Scene) -> gtsr_data::Normalisation {
 /// `gaussians.ply`, in the dataset's frame.
 pub fn write_splats(trainer: &Trainer, scene: &Scene, out: &Path) -> Result<usize> {
     let path = out.join("gaussians.ply");
-    write_splat_ply(&trainer.model, &path, &dataset_frame(scene))
+    write_splat_ply(trainer.model(), &path, &dataset_frame(scene))
         .with_context(|| format!("writing {}", path.display()))
 }
 
@@ -373,8 +373,8 @@ fn write_strips(
     dir: &Path,
 ) -> Result<usize> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let model = trainer.model.detached();
-    let mut opts = trainer.render_options(trainer.step, false);
+    let model = trainer.model().detached();
+    let mut opts = trainer.render_options(trainer.steps_done(), false);
     opts.geometry = true;
     for (k, (v, data)) in tests.iter().zip(&scene.test).enumerate() {
         let (w, h) = v.size();
@@ -466,7 +466,7 @@ pub fn finish(
     write_ply(&mesh_path, &world).with_context(|| format!("writing {}", mesh_path.display()))?;
     let n_splats = write_splats(trainer, scene, out)?;
     let n_strips = write_strips(trainer, tests, scene, &out.join("renders"))?;
-    let (ns, ni) = trainer.model.counts();
+    let (ns, ni) = trainer.model().counts();
     let masks_alone = match (gt, &settings.masks) {
         (Some(gt), Some(masks)) => {
             let cameras = training_cameras(scene);
@@ -475,16 +475,16 @@ pub fn finish(
         _ => None,
     };
     let metrics = gtsr_eval::RunMetrics {
-        iterations: trainer.step,
+        iterations: trainer.steps_done(),
         train_seconds,
         surface_gaussians: ns,
         interior_gaussians: ni,
-        skipped_steps: trainer.counters.skipped_steps,
-        raster_passes: trainer.counters.passes,
-        tile_splats: trainer.counters.tile_splats,
-        tile_splats_per_pass: trainer.counters.tile_splats as f64
-            / trainer.counters.passes.max(1) as f64,
-        trimmed_surface: trainer.counters.trimmed,
+        skipped_steps: trainer.counters().skipped_steps,
+        raster_passes: trainer.counters().passes,
+        tile_splats: trainer.counters().tile_splats,
+        tile_splats_per_pass: trainer.counters().tile_splats as f64
+            / trainer.counters().passes.max(1) as f64,
+        trimmed_surface: trainer.counters().trimmed,
         test_psnr: e.psnr,
         test_ssim: e.ssim,
         test_psnr_masked: e.psnr_masked,
@@ -520,7 +520,7 @@ pub fn finish(
     );
     println!(
         "final: {} steps in {:.0} s training; test PSNR {:.2} dB, SSIM {:.4}{}{}",
-        trainer.step,
+        trainer.steps_done(),
         train_seconds,
         e.psnr,
         e.ssim,

@@ -435,17 +435,21 @@ pub fn run(args: &Args) -> Result<Outcome> {
             .unwrap_or_default();
         let tl = Timeline::read_csv(&timeline_path).unwrap_or_default();
         if let Some(n) = args.iterations.map(|n| n as usize)
-            && n != t.config.iterations
+            && n != t.config().iterations
         {
             bail!(
                 "--iterations {n} with --resume: the run in {} was started for {} steps and \
                  its schedule (stage 2, learning-rate decay, densification) depends on that; \
                  resume without --iterations, or start a new run",
                 args.out.display(),
-                t.config.iterations
+                t.config().iterations
             );
         }
-        println!("resuming at step {} of {}", t.step, t.config.iterations);
+        println!(
+            "resuming at step {} of {}",
+            t.steps_done(),
+            t.config().iterations
+        );
         (t, state.train_seconds, tl)
     } else {
         let points = initial_points(&config, &views, &scene.train)?;
@@ -455,7 +459,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
             Timeline::new(),
         )
     };
-    let iterations = trainer.config.iterations;
+    let iterations = trainer.config().iterations;
     let gt_mesh = match &scene.mesh_path {
         Some(p) => {
             let mut m = gtsr_data::ply::read_ply(p)
@@ -501,7 +505,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
     // tenth of the run, so ten evenly spaced evaluations all landed on freshly reset models
     // (test PSNR 12 dB at step 600 of 1500 on wax_knot) and the curve showed the resets, not
     // the progress. Such a point moves one step earlier.
-    let densify = trainer.config.densify.clone();
+    let densify = trainer.config().densify.clone();
     let eval_steps: Vec<usize> = (1..=args.eval_points.max(1))
         .map(|k| (iterations * k).div_ceil(args.eval_points.max(1)))
         .map(|s| {
@@ -515,9 +519,9 @@ pub fn run(args: &Args) -> Result<Outcome> {
     println!(
         "training {} steps on {} views ({}x{}), {} test views; outputs in {}",
         iterations,
-        trainer.views.len(),
-        trainer.views[0].size().0,
-        trainer.views[0].size().1,
+        trainer.views().len(),
+        trainer.views()[0].size().0,
+        trainer.views()[0].size().1,
         tests.len(),
         args.out.display()
     );
@@ -527,14 +531,14 @@ pub fn run(args: &Args) -> Result<Outcome> {
         )
         .expect("template"),
     );
-    bar.set_position(trainer.step as u64);
+    bar.set_position(trainer.steps_done() as u64);
     let log_every = (iterations / 20).max(1);
     // Per stage: summed step times and the number of steps.
     let mut profile = [
         (StepTimes::default(), 0usize),
         (StepTimes::default(), 0usize),
     ];
-    while trainer.step < iterations {
+    while trainer.steps_done() < iterations {
         if stop.load(Ordering::SeqCst) {
             bar.abandon_with_message("interrupted");
             println!("Ctrl-C: writing a checkpoint and partial outputs");
@@ -553,16 +557,16 @@ pub fn run(args: &Args) -> Result<Outcome> {
         let slot = &mut profile[usize::from(r.stage == 2)];
         slot.0 += &r.times;
         slot.1 += 1;
-        bar.set_position(trainer.step as u64);
+        bar.set_position(trainer.steps_done() as u64);
         bar.set_message(format!(
             "stage {} loss {:.4} gaussians {}+{}",
             r.stage, r.loss, r.counts.0, r.counts.1
         ));
-        if trainer.step % log_every == 0 && bar.is_hidden() {
+        if trainer.steps_done() % log_every == 0 && bar.is_hidden() {
             println!(
                 "step {:6}/{iterations}  stage {}  loss {:.6}  gaussians {}+{}  \
                  tile-splats/pass {}  {:.1} s",
-                trainer.step,
+                trainer.steps_done(),
                 r.stage,
                 r.loss,
                 r.counts.0,
@@ -571,7 +575,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
                 train_seconds
             );
         }
-        if eval_steps.contains(&trainer.step) {
+        if eval_steps.contains(&trainer.steps_done()) {
             let e = outputs::evaluate(
                 &trainer,
                 &tests,
@@ -580,9 +584,9 @@ pub fn run(args: &Args) -> Result<Outcome> {
                 &mesh_settings,
                 true,
             )?;
-            let (ns, ni) = trainer.model.counts();
+            let (ns, ni) = trainer.model().counts();
             timeline.push(TimelinePoint {
-                iteration: trainer.step as u64,
+                iteration: trainer.steps_done() as u64,
                 train_seconds,
                 psnr: e.psnr,
                 ssim: e.ssim,
@@ -596,7 +600,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
                 &bar,
                 format!(
                     "eval @ {:6}: test PSNR {:.2} dB, SSIM {:.4}{}  (train time {:.0} s, eval {:.1} s)",
-                    trainer.step,
+                    trainer.steps_done(),
                     e.psnr,
                     e.ssim,
                     e.mesh.as_ref().map_or(String::new(), |m| format!(
@@ -613,7 +617,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
                 ),
             );
         }
-        if args.checkpoint_every > 0 && trainer.step % args.checkpoint_every == 0 {
+        if args.checkpoint_every > 0 && trainer.steps_done() % args.checkpoint_every == 0 {
             save_checkpoint(&trainer, &ckpt_path, &state_path, train_seconds)?;
         }
     }
@@ -645,7 +649,7 @@ fn write_profile(profile: &[(StepTimes, usize); 2], trainer: &Trainer, out: &Pat
 
 /// Mean milliseconds per step of each phase, per stage, as a markdown table.
 fn profile_table(profile: &[(StepTimes, usize); 2], trainer: &Trainer) -> String {
-    let (w, h) = trainer.views[0].size();
+    let (w, h) = trainer.views()[0].size();
     let mut out = format!(
         "Step time by phase, mean ms per step ({w}x{h}, {} rayon threads, blend {:?}).\n\n\
          | phase | stage 1 | stage 2 |\n|---|---:|---:|\n",

@@ -97,17 +97,17 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     let ckpt = args.run.join("checkpoint.safetensors");
     let mut trainer = checkpoint::load(&ckpt, views, &device)
         .with_context(|| format!("loading {}", ckpt.display()))?;
-    let last = trainer.step.saturating_sub(1);
+    let last = trainer.steps_done().saturating_sub(1);
     if !trainer.is_stage2(last) {
         bail!("{}: the run has not reached stage 2", args.run.display());
     }
     let footprint = median_pixel_footprint(scene.train.iter().map(|v| &v.camera), Vec3::ZERO);
 
-    let surface = trainer.model.surface.to_host();
+    let surface = trainer.model().surface.to_host();
     let (means, _) = surface.column(ParamKind::Means).context("means")?;
     let means: Vec<Vec3> = means.chunks_exact(3).map(Vec3::from_slice).collect();
     let opacity = host_vec(logistic(
-        trainer.model.surface.req(ParamKind::Opacity).clone(),
+        trainer.model().surface.req(ParamKind::Opacity).clone(),
     ));
     let n = means.len();
     let located: Vec<(f32, Vec3)> = means.iter().map(|p| sdf.query(*p)).collect();
@@ -125,7 +125,7 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
             let (name, term) = f.terms[t].clone();
             drop(f);
             let grads = term.backward();
-            let s = &trainer.model.surface;
+            let s = &trainer.model().surface;
             let g_logit = s
                 .req(ParamKind::Opacity)
                 .grad(&grads)
@@ -172,7 +172,7 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
          (+: outward), x1e6.\n\n",
         args.run.display(),
         scene_name(&args.data),
-        trainer.step,
+        trainer.steps_done(),
         n,
         footprint,
         args.views

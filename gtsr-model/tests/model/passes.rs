@@ -24,18 +24,18 @@ fn switches_change_allocations_and_pass_counts() {
         let r1 = t.step().unwrap();
         assert_eq!(r1.stage, 1);
         assert_eq!(r1.passes, s1, "{preset:?} stage 1");
-        t.step = t.config.stage2_start;
+        t.seek(t.config().stage2_start);
         let r2 = t.step().unwrap();
         assert_eq!(r2.stage, 2);
         assert_eq!(r2.passes, s2, "{preset:?} stage 2");
         assert_eq!(
-            t.model.interior.is_some(),
+            t.model().interior.is_some(),
             comps.interior,
             "{preset:?} interior set"
         );
-        assert_eq!(t.model.log_light.is_some(), comps.pbr, "{preset:?} light");
+        assert_eq!(t.model().log_light.is_some(), comps.pbr, "{preset:?} light");
         assert_eq!(
-            t.model.surface.get(ParamKind::BaseColour).is_some(),
+            t.model().surface.get(ParamKind::BaseColour).is_some(),
             comps.pbr,
             "{preset:?} material"
         );
@@ -47,11 +47,11 @@ fn switches_change_allocations_and_pass_counts() {
     comps.multi_view = false;
     comps.sh_degree = 0;
     let mut t = trainer(&scene, small_config(comps, 6), &device);
-    t.step = t.config.stage2_start;
+    t.seek(t.config().stage2_start);
     assert_eq!(t.step().unwrap().passes, 3);
-    assert!(t.model.surface.get(ParamKind::ShRest).is_none());
+    assert!(t.model().surface.get(ParamKind::ShRest).is_none());
     assert!(
-        t.model
+        t.model()
             .interior
             .as_ref()
             .unwrap()
@@ -75,10 +75,10 @@ fn tile_splat_pairs_add_up_over_passes_and_steps() {
 
     // Stage 1 blends the surface set once, in the same pass as its geometry: the step's pairs
     // are the depth-only render's of the same view.
-    let vi = t.view_for_step(t.step);
-    let v = t.views[vi].clone();
+    let vi = t.view_for_step(t.steps_done());
+    let v = t.views()[vi].clone();
     let alone = t
-        .model
+        .model()
         .render_depth(&v.camera, &v.rays)
         .unwrap()
         .tile_splats;
@@ -89,13 +89,13 @@ fn tile_splat_pairs_add_up_over_passes_and_steps() {
     // Stage 2: C_SH (both sets), geometry (surface), scattering (interior), the neighbour
     // (surface). The geometry pass is the depth-only render again, and the whole is more than
     // the geometry and neighbour passes.
-    t.step = t.config.stage2_start;
-    let f = t.forward(t.step).unwrap();
-    let v = t.views[f.view].clone();
+    t.seek(t.config().stage2_start);
+    let f = t.forward(t.steps_done()).unwrap();
+    let v = t.views()[f.view].clone();
     let geometry = f.renders.geometry.as_ref().unwrap().tile_splats;
     assert_eq!(
         geometry,
-        t.model
+        t.model()
             .render_depth(&v.camera, &v.rays)
             .unwrap()
             .tile_splats
@@ -111,8 +111,8 @@ fn tile_splat_pairs_add_up_over_passes_and_steps() {
     );
     drop(f);
 
-    let before = t.counters.tile_splats;
+    let before = t.counters().tile_splats;
     assert_eq!(before, alone, "the counters hold the stage-1 step");
     let r2 = t.step().unwrap();
-    assert_eq!(t.counters.tile_splats, before + r2.tile_splats);
+    assert_eq!(t.counters().tile_splats, before + r2.tile_splats);
 }

@@ -22,15 +22,15 @@ fn non_finite_steps_are_skipped_and_counted() {
         small_config(Preset::Full.components().unwrap(), 30),
         &device,
     );
-    t.step = t.config.stage2_start;
+    t.seek(t.config().stage2_start);
     t.step().unwrap();
-    t.model.log_light = Some(scalar_param(f64::NAN, &device));
-    let before = t.model.surface.to_host();
+    t.model_mut().log_light = Some(scalar_param(f64::NAN, &device));
+    let before = t.model().surface.to_host();
     let r = t.step().unwrap();
     assert!(r.skipped && !r.loss.is_finite());
-    assert_eq!(t.counters.skipped_steps, 1);
+    assert_eq!(t.counters().skipped_steps, 1);
     assert_eq!(
-        t.model.surface.to_host(),
+        t.model().surface.to_host(),
         before,
         "a skipped step must not touch the parameters"
     );
@@ -54,17 +54,17 @@ fn resume_from_checkpoint_equals_uninterrupted_training() {
     checkpoint::save(&b, &path).unwrap();
     drop(b);
     let mut c = checkpoint::load(&path, views(&scene, &device), &device).unwrap();
-    assert_eq!(c.step, 17);
+    assert_eq!(c.steps_done(), 17);
     for _ in 17..26 {
         c.step().unwrap();
     }
-    assert_eq!(a.model.surface.to_host(), c.model.surface.to_host());
+    assert_eq!(a.model().surface.to_host(), c.model().surface.to_host());
     assert_eq!(
-        a.model.interior.as_ref().unwrap().to_host(),
-        c.model.interior.as_ref().unwrap().to_host()
+        a.model().interior.as_ref().unwrap().to_host(),
+        c.model().interior.as_ref().unwrap().to_host()
     );
-    let la: f32 = a.model.log_light.clone().unwrap().into_scalar();
-    let lc: f32 = c.model.log_light.clone().unwrap().into_scalar();
+    let la: f32 = a.model().log_light.clone().unwrap().into_scalar();
+    let lc: f32 = c.model().log_light.clone().unwrap().into_scalar();
     assert_eq!(la, lc);
     // A damaged checkpoint is refused with the file named.
     std::fs::write(&path, b"not a checkpoint").unwrap();
@@ -84,11 +84,11 @@ fn splat_ply_has_the_3dgs_layout() {
         small_config(Preset::Full.components().unwrap(), 30),
         &device,
     );
-    t.step = t.config.stage2_start;
+    t.seek(t.config().stage2_start);
     t.step().unwrap();
     let path = dir.path().join("gaussians.ply");
-    let n = write_splat_ply(&t.model, &path, &Normalisation::IDENTITY).unwrap();
-    let (ns, ni) = t.model.counts();
+    let n = write_splat_ply(t.model(), &path, &Normalisation::IDENTITY).unwrap();
+    let (ns, ni) = t.model().counts();
     assert_eq!(n, ns + ni);
     let bytes = std::fs::read(&path).unwrap();
     let end = bytes
@@ -134,7 +134,7 @@ fn splat_ply_has_the_3dgs_layout() {
         radius: 4.0,
     };
     let world = dir.path().join("gaussians_world.ply");
-    assert_eq!(write_splat_ply(&t.model, &world, &frame).unwrap(), n);
+    assert_eq!(write_splat_ply(t.model(), &world, &frame).unwrap(), n);
     let wbytes = std::fs::read(&world).unwrap();
     assert_eq!(wbytes.len(), bytes.len());
     let at = |b: &[u8], i: usize, name: &str| {
@@ -161,7 +161,7 @@ fn splat_ply_has_the_3dgs_layout() {
         radius: 0.0,
         ..frame
     };
-    let e = write_splat_ply(&t.model, &world, &bad)
+    let e = write_splat_ply(t.model(), &world, &bad)
         .unwrap_err()
         .to_string();
     assert!(e.contains("gaussians_world.ply"), "{e}");

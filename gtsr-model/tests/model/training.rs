@@ -34,14 +34,14 @@ fn short_training_run_lowers_the_photometric_loss() {
     let p1 = pbr[pbr.len() - 8..].iter().sum::<f64>() / 8.0;
     eprintln!(
         "C_SH {first:.4} -> {last:.4}, C_PBR {p0:.4} -> {p1:.4}, sets {:?}",
-        t.model.counts()
+        t.model().counts()
     );
     assert!(
         p1 < 0.8 * p0,
         "C_PBR loss went from {p0:.4} to {p1:.4} only"
     );
-    assert!(t.counters.densifications > 0);
-    let (ns, ni) = t.model.counts();
+    assert!(t.counters().densifications > 0);
+    let (ns, ni) = t.model().counts();
     assert!(ns > 0 && ni > 0);
 }
 
@@ -54,7 +54,7 @@ fn every_parameter_tensor_receives_gradient() {
     let mut cfg = small_config(comps, 30);
     cfg.sh_increase_every = 1;
     let mut t = trainer(&scene, cfg, &device);
-    t.step = 29; // stage 2, SH degree 3
+    t.seek(29); // stage 2, SH degree 3
     let norms = t.gradient_norms().unwrap();
     assert_eq!(norms.len(), 8 + 6 + 1, "{norms:?}");
     for (set, param, g) in &norms {
@@ -72,11 +72,11 @@ fn detached_model_renders_the_same_and_records_no_graph() {
     let device = device();
     let comps = Preset::Full.components().unwrap();
     let mut t = trainer(&scene, small_config(comps, 30), &device);
-    t.step = 29; // stage 2: both sets, Fresnel, PBR
-    let opts = t.render_options(t.step, false);
-    let view = t.views[0].clone();
-    let tracked = t.model.render(&view.camera, &view.rays, opts).unwrap();
-    let model = t.model.detached();
+    t.seek(29); // stage 2: both sets, Fresnel, PBR
+    let opts = t.render_options(t.steps_done(), false);
+    let view = t.views()[0].clone();
+    let tracked = t.model().render(&view.camera, &view.rays, opts).unwrap();
+    let model = t.model().detached();
     let free = model.render(&view.camera, &view.rays, opts).unwrap();
     assert!(
         tracked.c_sh.is_tracked(),
@@ -102,7 +102,7 @@ fn detached_model_renders_the_same_and_records_no_graph() {
     );
     // The training parameters are untouched.
     assert!(
-        t.model
+        t.model()
             .surface
             .params
             .iter()
@@ -131,11 +131,11 @@ fn multi_view_trim_removes_exactly_the_gaussians_too_few_views_observe() {
     let comps = Preset::Full.components().unwrap();
     let mut t = trainer(&scene, small_config(comps, 30), &device);
     // Opaque Gaussians, so that the ones deep inside the ball hide behind the front ones.
-    let mut host = t.model.surface.to_host();
+    let mut host = t.model().surface.to_host();
     for o in host.column_mut(ParamKind::Opacity).unwrap() {
         *o = 3.0;
     }
-    t.model.surface = host.to_device(&device);
+    t.model_mut().surface = host.to_device(&device);
     let counts = |t: &gtsr_model::Trainer| t.observation_counts(0.5).unwrap();
     let views = counts(&t);
     let before = views.len();
@@ -146,7 +146,7 @@ fn multi_view_trim_removes_exactly_the_gaussians_too_few_views_observe() {
     );
     let removed = t.trim_unobserved(2, 0.5).unwrap();
     assert_eq!(removed, expected);
-    assert_eq!(t.model.surface.len(), before - expected);
+    assert_eq!(t.model().surface.len(), before - expected);
     // Removing splats only raises the transmittance in front of the others: every survivor
     // passes the test again. Training goes on with the pruned set.
     let after = counts(&t);
@@ -168,13 +168,13 @@ fn scheduled_trim_runs_inside_the_densification_window_and_is_counted() {
     let mut t = trainer(&scene, config, &device);
     let mut trimmed_at = Vec::new();
     for step in 1..=30 {
-        let before = t.counters.trimmed;
+        let before = t.counters().trimmed;
         let r = t.step().unwrap();
         assert!(!r.skipped && r.loss.is_finite(), "step {step}");
-        if t.counters.trimmed > before {
+        if t.counters().trimmed > before {
             trimmed_at.push(step);
         }
-        assert_eq!(r.counts.0, t.model.surface.len());
+        assert_eq!(r.counts.0, t.model().surface.len());
     }
     // Trims run after steps 10 and 20 only (not 30: densification has ended); the random start
     // puts Gaussians behind others, so both remove some.
