@@ -22,9 +22,8 @@
 //!   The extracted field is the larger of the two, so the surface stays inside every
 //!   silhouette (the object is inside each of them) and is placed between voxels there as the
 //!   hull is; the depth maps add what silhouettes cannot see (concavities). Masked-out pixels
-//!   then update only the hull field, not the TSDF average (their `+truncation` votes pull the
-//!   average positive near every silhouette: on a trained wax_knot model dropping them took
-//!   the chamfer from 5.4e-3 to 3.2e-3). Points inside the hull that no depth map measured
+//!   then update only the hull field, not the TSDF average (their `+truncation` votes would pull
+//!   the average positive near every silhouette). Points inside the hull that no depth map measured
 //!   count as inside (`-truncation`): where depth is missing the hull is the surface.
 
 use glam::Vec3;
@@ -41,8 +40,7 @@ pub const DEFAULT_TRUNCATION_VOXELS: f32 = 4.0;
 
 /// A voxel size for an object of bounding radius `radius`: 512 voxels across its diameter
 /// (`radius / 256`; 0.0039 for the unit sphere, inside PGSR's 0.002..0.004 range for
-/// normalised scenes). On wax_knot (64 px, 1500 steps) `radius / 128` gave chamfer x1e3
-/// 2.15, 0.004 (`radius / 237`) 1.84 and 0.003 1.87 in twice the time.
+/// normalised scenes); finer grids cost time without a better mesh (`docs/results.md`).
 pub fn default_voxel_for_radius(radius: f32) -> f32 {
     radius / 256.0
 }
@@ -63,30 +61,15 @@ pub const DEPTH_ONLY_TRUNCATION_FOOTPRINTS: f32 = 2.0;
 ///
 /// * With free-space votes (silhouette carving, or scenes without masks): the larger of
 ///   [`TRUNCATION_RADII`] radii and [`TRUNCATION_FOOTPRINTS`] footprints. Rendered depth lies
-///   behind the true surface (median error 0.04-0.09 at 64 px, about a footprint), and
-///   KinectFusion drops votes far behind the measured depth: a short truncation puts the
-///   surface at the rendered depth and erodes the object, a long one lets the "inside" votes
-///   of the views that see a point from the far side outweigh the "free" votes of the views
-///   that see it, and the carved field ends at the masks' visual hull. Chamfer x1e3 of one
-///   model per scene at each truncation (64 px, 1500 steps, voxel radius / 256, radius
-///   about 1):
+///   about a footprint behind the true surface, and KinectFusion drops votes far behind the
+///   measured depth: a short truncation puts the surface at the rendered depth and erodes the
+///   object, a long one lets the "inside" votes of the views that see a point from the far
+///   side outweigh the "free" votes of the views that see it, so the field ends at the masks'
+///   visual hull rather than inside it.
+/// * Without free-space votes (depth alone on a masked scene): [`DEPTH_ONLY_TRUNCATION_FOOTPRINTS`]
+///   footprints; a long truncation there swells the surface past the object.
 ///
-///   | truncation | 0.25 (0.27) | 0.4 | 0.625 | 0.8 | 1.0 | 1.2 |
-///   |---|---:|---:|---:|---:|---:|---:|
-///   | amber_ingot | 22.2 | 12.0 | 7.51 | 7.48 | | 7.48 |
-///   | wax_knot | 1.84 | 1.80 | 1.80 | | 1.79 | |
-///   | built-in bear | 14.4 | | 3.15 | | 3.03 | |
-///
-///   What the long truncation converges to is the hull: the masks alone through the same
-///   fusion give 1.79 on wax_knot and 1.95 on amber_ingot, as every trained model does
-///   (`cargo xtask bench-recon`). The ground truth's own depth does better only at shorter
-///   truncations (1.60 at 2 footprints on wax_knot, 1.79 at 4 on amber_ingot;
-///   `cargo xtask fusion-ceiling`); rendered depth that far off the surface does not.
-/// * Without free-space votes (depth alone on a masked scene, gtsr-train's
-///   `--no-silhouette-carving`): [`DEPTH_ONLY_TRUNCATION_FOOTPRINTS`] footprints. The
-///   wax_knot full model (64 px, footprint 0.045) measured chamfer x1e3 37.8 at 6 footprints,
-///   24.3 at 2 and 29.9 at 1; with the long truncation the surface swelled past the object
-///   (192).
+/// The measurements behind both choices are in `docs/results.md`.
 pub fn default_truncation(radius: f32, footprint: f32, free_space_votes: bool) -> f32 {
     if free_space_votes {
         (TRUNCATION_RADII * radius).max(TRUNCATION_FOOTPRINTS * footprint)

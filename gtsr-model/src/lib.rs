@@ -16,7 +16,7 @@
 //! - [`checkpoint`], [`export`]: saving and resuming, 3DGS-compatible PLY.
 
 #![warn(missing_docs)]
-// NdArray is deprecated upstream in favour of burn-flex; the design card keeps it for CI.
+// NdArray is deprecated upstream in favour of burn-flex; it stays the CPU and CI backend.
 #![allow(deprecated)]
 
 pub mod checkpoint;

@@ -11,7 +11,7 @@
 //! runs a subset. `GTSR_BLEND=per-pixel|scalar|avx2|avx512` runs the f32 blend on another
 //! implementation (`cpu::BlendPath`).
 
-// Device::ndarray is deprecated upstream; the design card keeps NdArray as the CI backend.
+// Device::ndarray is deprecated upstream; NdArray stays the CPU and CI backend.
 #![allow(deprecated)]
 
 use std::process::Command;

@@ -3,7 +3,7 @@
 //! `cargo run --release -p gtsr-render-kernels --example render_png -- [out.png]` (NdArray);
 //! add `--features wgpu` and `wgpu` after the file name for the wgpu backend.
 
-// Device::ndarray is deprecated upstream; the design card keeps NdArray as the CI backend.
+// Device::ndarray is deprecated upstream; NdArray stays the CPU and CI backend.
 #![allow(deprecated)]
 
 use burn::tensor::{DType, Device};

@@ -28,8 +28,8 @@
 //!   `alpha >= 1/255` is possible), so no contribution is cut off by the tiling.
 
 #![warn(missing_docs)]
-// burn-ndarray is deprecated upstream in favour of burn-flex, but the project's design card
-// names it as the CI backend; the kernels are written against it on purpose.
+// burn-ndarray is deprecated upstream in favour of burn-flex; it stays the CPU and CI
+// backend, and the kernels are written against it on purpose.
 #![allow(deprecated)]
 
 pub mod api;

@@ -4,7 +4,7 @@
 //! host past 2^20 elements; the backward pass deterministic and independent of its banding.
 //! In CI these run on Mesa's lavapipe (CPU Vulkan, Mesa 25).
 #![cfg(feature = "wgpu")]
-// Device::ndarray is deprecated upstream; the design card keeps NdArray as the CI backend.
+// Device::ndarray is deprecated upstream; NdArray stays the CPU and CI backend.
 #![allow(deprecated)]
 
 use burn::tensor::{DType, Device, DeviceKind, Tensor};

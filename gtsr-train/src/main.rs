@@ -4,7 +4,7 @@
 //! path-traced by `gtsr-data`) and reconstructs it on the CPU. See `--help` for the options and
 //! the README for what lands in `--out`.
 
-#![allow(deprecated)] // burn-ndarray: the design card keeps it as the CPU backend.
+#![allow(deprecated)] // burn-ndarray: deprecated upstream, kept as the CPU backend.
 
 mod outputs;
 mod pipeline;

@@ -2,7 +2,7 @@
 //! Burn training loop (parameters as autodiff leaves, activations upstream, Burn's Adam per
 //! tensor) fits a target image rendered from a different scene.
 
-// Device::ndarray is deprecated upstream; the design card keeps NdArray as the CI backend.
+// Device::ndarray is deprecated upstream; NdArray stays the CPU and CI backend.
 #![allow(deprecated)]
 
 use burn::optim::{AdamConfig, Optimizer};

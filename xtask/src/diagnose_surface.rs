@@ -71,7 +71,7 @@ struct RunConfig {
 }
 
 /// Runs the diagnosis and prints (and writes) the report.
-#[allow(deprecated)] // burn-ndarray: the design card keeps it as the CPU backend.
+#[allow(deprecated)] // burn-ndarray: deprecated upstream, kept as the CPU backend.
 pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     if args.views == 0 {
         bail!("--views must be at least 1");

@@ -1,7 +1,7 @@
 //! Tests of the splatting kernels: forward against the brute-force reference, analytic
 //! profiles, backward against central finite differences, stiff cases, determinism.
 
-// Device::ndarray is deprecated upstream; the design card keeps NdArray as the CI backend.
+// Device::ndarray is deprecated upstream; NdArray stays the CPU and CI backend.
 #![allow(deprecated)]
 
 mod analytic;
