@@ -633,6 +633,11 @@ pub struct TrainConfig {
     /// are left out.
     #[arg(long = "multi-view-max-error", id = "train.multi_view_max_error_px", value_name = "PX", default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).multi_view_max_error_px, value_parser = parse_positive, help_heading = "Training")]
     pub multi_view_max_error_px: f64,
+    /// Steps trained at half the resolution before the full one (0: none; a coarse-to-fine
+    /// schedule, applied by the front end that loads the views).
+    #[arg(long = "coarse-until", id = "train.coarse_until", value_name = "STEP", default_value_t = 0, value_parser = clap::value_parser!(usize), help_heading = "Training")]
+    #[serde(default)]
+    pub coarse_until: usize,
     /// Seed of every random choice (initialisation, view order, densification).
     #[arg(long = "seed", id = "train.seed", value_name = "SEED", default_value_t = 0, value_parser = clap::value_parser!(u64), help_heading = "Training")]
     pub seed: u64,
@@ -672,6 +677,7 @@ impl TrainConfig {
             pbr_srgb_output: true,
             neighbour_max_angle_deg: 30.0,
             multi_view_max_error_px: 1.0,
+            coarse_until: 0,
             seed: 0,
             blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
         };

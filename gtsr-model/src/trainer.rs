@@ -431,6 +431,31 @@ impl Trainer {
         })
     }
 
+    /// Trains on `views` from now on: the same training views at another resolution (a
+    /// coarse-to-fine schedule, [`TrainConfig::coarse_until`]). Each must show the same camera
+    /// centre as the view it replaces, in the same order.
+    pub fn set_views(&mut self, views: Vec<ViewTensors>) -> Result<(), ModelError> {
+        if views.len() != self.views.len() {
+            return Err(ModelError::Data(format!(
+                "{} views replace {} training views",
+                views.len(),
+                self.views.len()
+            )));
+        }
+        for (new, old) in views.iter().zip(&self.views) {
+            let (a, b) = (new.camera.centre(), old.camera.centre());
+            let d = (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt();
+            if d > 1e-4 * (1.0 + b.iter().map(|x| x.abs()).fold(0.0, f64::max)) {
+                return Err(ModelError::Data(format!(
+                    "view {} replaces {} from another camera centre",
+                    new.name, old.name
+                )));
+            }
+        }
+        self.views = views;
+        Ok(())
+    }
+
     /// Whether `step` is in stage 2.
     pub fn is_stage2(&self, step: usize) -> bool {
         step >= self.config.stage2_start

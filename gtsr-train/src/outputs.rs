@@ -195,8 +195,10 @@ fn fusion_depth(
     data: &gtsr_data::View,
     settings: &MeshSettings,
 ) -> Result<(Vec<f32>, Vec<f32>)> {
-    let (g, rays) = if settings.fusion_views.is_empty() {
-        let v = &trainer.views()[k];
+    let trained = &trainer.views()[k];
+    let same_size = trained.size() == (data.camera.width as usize, data.camera.height as usize);
+    let (g, rays) = if settings.fusion_views.is_empty() && same_size {
+        let v = trained;
         (
             fusion_geometry(model, &v.camera, &v.rays, settings)?,
             v.rays.clone(),

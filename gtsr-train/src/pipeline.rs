@@ -459,6 +459,31 @@ pub fn run(args: &Args) -> Result<Outcome> {
         )
     };
     let iterations = trainer.config().iterations;
+    // Coarse to fine: the steps before `coarse_until` train on the views at half the size.
+    let mut full_views = None;
+    if trainer.steps_done() < trainer.config().coarse_until {
+        let (w, h) = trainer.views()[0].size();
+        let side = (w.max(h) / 2).max(8) as u32;
+        let coarse = load_scene(
+            &data_dir,
+            &LoadOptions {
+                downscale: Downscale::MaxSide(side),
+                ..opts.clone()
+            },
+        )
+        .with_context(|| format!("loading {} at {side} px", data_dir.display()))?;
+        let coarse_views = upload_views(&coarse.train, &device)
+            .with_context(|| format!("dataset {} at {side} px", data_dir.display()))?;
+        full_views = Some(trainer.views().to_vec());
+        trainer
+            .set_views(coarse_views)
+            .context("the coarse training views")?;
+        let (cw, ch) = trainer.views()[0].size();
+        println!(
+            "coarse to fine: {cw}x{ch} until step {}, then {w}x{h}",
+            trainer.config().coarse_until
+        );
+    }
     let gt_mesh = match &scene.mesh_path {
         Some(p) => {
             let mut m = gtsr_data::ply::read_ply(p)
@@ -549,6 +574,13 @@ pub fn run(args: &Args) -> Result<Outcome> {
             outputs::write_splats(&trainer, &scene, &args.out)?;
             println!("checkpoint {}; continue with --resume", ckpt_path.display());
             return Ok(Outcome::Interrupted);
+        }
+        if trainer.steps_done() >= trainer.config().coarse_until
+            && let Some(views) = full_views.take()
+        {
+            trainer
+                .set_views(views)
+                .context("the full-size training views")?;
         }
         let t0 = Instant::now();
         let r = trainer.step()?;

@@ -188,6 +188,8 @@ fn trains_a_tiny_scene_and_writes_every_output() {
             "4",
             "--pbr",
             "false",
+            "--coarse-until",
+            "1",
             "--eval-points",
             "1",
             "--checkpoint-every",

@@ -168,6 +168,27 @@ fn splat_ply_has_the_3dgs_layout() {
 }
 
 #[test]
+fn views_are_replaced_only_by_the_same_cameras() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    let mut t = trainer(
+        &scene,
+        small_config(Preset::Full.components().unwrap(), 10),
+        &device,
+    );
+    let same = t.views().to_vec();
+    t.set_views(same.clone()).unwrap();
+    let e = t.set_views(same[1..].to_vec()).unwrap_err().to_string();
+    assert!(e.contains("replace"), "{e}");
+    let mut swapped = same.clone();
+    swapped.swap(0, 1);
+    let e = t.set_views(swapped).unwrap_err().to_string();
+    assert!(e.contains("camera centre"), "{e}");
+    t.step().unwrap();
+}
+
+#[test]
 fn bad_views_and_configs_are_refused_with_reasons() {
     let dir = tempfile::tempdir().unwrap();
     let scene = tiny_scene(dir.path());
