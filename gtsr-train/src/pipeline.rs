@@ -396,6 +396,14 @@ pub fn run(args: &Args) -> Result<Outcome> {
         .unwrap_or(if args.data.is_none() { 1500 } else { 3000 });
     // With --config the file's preset is the one the settings came from.
     let preset = file.as_ref().and_then(|f| f.preset).unwrap_or(args.preset);
+    if file.is_some() && args.given.iter().any(|id| id == "preset") && preset != args.preset {
+        println!(
+            "note: --preset {} is ignored with --config, whose components come from {}; switch \
+             components with --interior false and the like",
+            args.preset.name(),
+            preset.name()
+        );
+    }
     let (config, mesh_config, decisions) = resolve_config(args, &scene, file, iterations)?;
     for d in &decisions {
         println!(
