@@ -81,6 +81,11 @@ fn time_it(mut f: impl FnMut()) -> (f64, usize) {
 }
 
 fn single(size: u32, count: usize) {
+    // As gtsr-train runs the kernels: freed buffers stay in the process between calls
+    // (`GTSR_BENCH_MALLOC=default` leaves glibc's defaults).
+    if std::env::var("GTSR_BENCH_MALLOC").as_deref() != Ok("default") {
+        cpu::keep_freed_memory();
+    }
     let scene = random_scene(2024, &RandomSceneSpec::bench(count, size, size));
     let cfg = scene.config(AlphaCutoff::Hard);
     // Work counts from the host kernels (same code the backend runs).
@@ -94,7 +99,7 @@ fn single(size: u32, count: usize) {
     let device = bench_device();
     let (fwd_ms, fwd_n) = time_it(|| {
         let out = render(scene.inputs(&device, DType::F32), &cfg).unwrap();
-        let _ = out.image.into_data();
+        let _ = out.image.sum().into_scalar::<f32>();
     });
     let ad = bench_device().autodiff();
     let step = || {
@@ -111,7 +116,7 @@ fn single(size: u32, count: usize) {
         let out = render(inp, &cfg).unwrap();
         let loss = out.image.sum() + out.alpha.sum();
         let grads = loss.backward();
-        let _ = keep.grad(&grads).unwrap().into_data();
+        let _ = keep.grad(&grads).unwrap().sum().into_scalar::<f32>();
     };
     // Where the time of a forward+backward call goes (CPU kernels; mean over the timed calls
     // and the warm-up).

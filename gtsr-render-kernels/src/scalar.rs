@@ -11,6 +11,8 @@ pub trait Real: num_traits::Float + Send + Sync + Debug + Default + 'static {
     fn f64(self) -> f64;
     /// The slice itself when `Self` is `f32` (routes f32 to the SIMD blend), else `None`.
     fn slice_as_f32(s: &[Self]) -> Option<&[f32]>;
+    /// [`Real::slice_as_f32`] for a mutable slice.
+    fn slice_as_f32_mut(s: &mut [Self]) -> Option<&mut [f32]>;
 }
 
 impl Real for f32 {
@@ -26,6 +28,10 @@ impl Real for f32 {
     fn slice_as_f32(s: &[Self]) -> Option<&[f32]> {
         Some(s)
     }
+    #[inline(always)]
+    fn slice_as_f32_mut(s: &mut [Self]) -> Option<&mut [f32]> {
+        Some(s)
+    }
 }
 
 impl Real for f64 {
@@ -39,6 +45,10 @@ impl Real for f64 {
     }
     #[inline(always)]
     fn slice_as_f32(_: &[Self]) -> Option<&[f32]> {
+        None
+    }
+    #[inline(always)]
+    fn slice_as_f32_mut(_: &mut [Self]) -> Option<&mut [f32]> {
         None
     }
 }

@@ -104,6 +104,9 @@ pub enum Backend {
 }
 
 fn main() {
+    // Each training step renders many views; keep their freed buffers in the process instead
+    // of faulting fresh pages in at every render.
+    gtsr_render_kernels::cpu::keep_freed_memory();
     let args = Args::parse_with_sources();
     match pipeline::run(&args) {
         Ok(pipeline::Outcome::Finished) => {}

@@ -9,15 +9,16 @@ use crate::scalar::Real;
 
 /// Visible Gaussians in depth order, ties by index: entry `j` is a Gaussian index.
 pub(crate) fn depth_order<F: Real>(splats: &[Option<Splat<F>>]) -> Vec<u32> {
-    // Visible depths are >= near > 0, so their (exact) f64 bit patterns sort like the values;
-    // the index breaks ties deterministically.
+    // Visible depths are >= near > 0, so their (exact) f64 bit patterns sort like the values.
+    // The radix sort is stable and the keys are collected in index order, so ties stay in
+    // index order; it skips the bytes that every key shares (the low ones, for f32 depths).
     let mut keys: Vec<(u64, u32)> = splats
         .par_iter()
         .enumerate()
         .filter_map(|(i, s)| s.as_ref().map(|s| (s.depth.f64().to_bits(), i as u32)))
         .collect();
-    keys.par_sort_unstable();
-    keys.par_iter().map(|k| k.1).collect()
+    radsort::sort_by_key(&mut keys, |k| k.0);
+    keys.into_iter().map(|k| k.1).collect()
 }
 
 /// Depth-sorted splats binned into tiles, with each tile's splats (and features) copied

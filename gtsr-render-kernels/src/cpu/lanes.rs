@@ -109,7 +109,7 @@ impl BlendPath {
     /// Runs `op` compiled for this path's instruction set (the portable build for
     /// `PerPixel` and `LanesScalar`, and where the CPU lacks the set).
     #[inline(always)]
-    fn run<Op: WithSimd>(self, op: Op) -> Op::Output {
+    pub(crate) fn run<Op: WithSimd>(self, op: Op) -> Op::Output {
         #[cfg(target_arch = "x86_64")]
         match self {
             BlendPath::LanesAvx512 => {

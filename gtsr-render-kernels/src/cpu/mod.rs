@@ -5,12 +5,15 @@
 //! backend. They are public (in the `cpu` module) so that benchmarks and tools can call them
 //! without Burn, and so that other backends can use them as a reference.
 
+mod alloc;
+mod arith;
 mod bin;
 mod lanes;
 mod project;
 mod raster;
 mod timing;
 
+pub use alloc::keep_freed_memory;
 pub use lanes::{BlendPath, exp_lanes};
 pub use timing::{KernelTimes, kernel_times};
 pub(crate) use timing::{Phase, lap};
@@ -245,19 +248,22 @@ fn forward_impl<F: Real>(
     let cam = CamF::<F>::new(cfg);
     let n = g.len();
     let c = cfg.background.len();
-    let projected: Vec<Result<Splat<F>, f32>> = (0..n)
-        .into_par_iter()
-        .with_min_len(1024)
-        .map(|i| {
-            if g.features[i * c..(i + 1) * c]
-                .iter()
-                .any(|f| !f.is_finite())
-            {
-                return Err(status::NON_FINITE);
-            }
-            project::project_one(&g.get(i), &cam)
-        })
-        .collect();
+    let projected: Vec<Result<Splat<F>, f32>> =
+        project_f32_lanes(g, cfg, path).unwrap_or_else(|| {
+            (0..n)
+                .into_par_iter()
+                .with_min_len(1024)
+                .map(|i| {
+                    if g.features[i * c..(i + 1) * c]
+                        .iter()
+                        .any(|f| !f.is_finite())
+                    {
+                        return Err(status::NON_FINITE);
+                    }
+                    project::project_one(&g.get(i), &cam)
+                })
+                .collect()
+        });
     let mut aux = vec![F::zero(); n * 4];
     for (i, p) in projected.iter().enumerate() {
         match p {
@@ -321,6 +327,51 @@ fn forward_impl<F: Real>(
     }
 }
 
+/// The f32 inputs as f32 slices (`None` for f64).
+fn as_f32<'a, F: Real>(g: &HostGaussians<'a, F>) -> Option<HostGaussians<'a, f32>> {
+    Some(HostGaussians {
+        means: F::slice_as_f32(g.means)?,
+        quats: F::slice_as_f32(g.quats)?,
+        scales: F::slice_as_f32(g.scales)?,
+        opacities: F::slice_as_f32(g.opacities)?,
+        features: F::slice_as_f32(g.features)?,
+        xy_offsets: F::slice_as_f32(g.xy_offsets)?,
+    })
+}
+
+/// The projection of f32 inputs on a lane path, 16 Gaussians at a time (`None` for f64 and the
+/// per-pixel path). Bit-identical to the per-Gaussian projection.
+fn project_f32_lanes<F: Real>(
+    g: &HostGaussians<'_, F>,
+    cfg: &SplatConfig,
+    path: BlendPath,
+) -> Option<Vec<Result<Splat<F>, f32>>> {
+    if path == BlendPath::PerPixel {
+        return None;
+    }
+    let g32 = as_f32(g)?;
+    let cam = CamF::<f32>::new(cfg);
+    let cam16 = cam.lanes();
+    let c = cfg.background.len();
+    const RUN: usize = 1024;
+    let mut out: Vec<Result<Splat<f32>, f32>> = vec![Err(status::NON_FINITE); g.len()];
+    out.par_chunks_mut(RUN).enumerate().for_each(|(k, out)| {
+        path.run(project::ProjectLanes {
+            g: &g32,
+            channels: c,
+            cam: &cam,
+            cam16: &cam16,
+            first: k * RUN,
+            out,
+        });
+    });
+    // `F` is f32 here (`as_f32` succeeded); the downcast only restores the generic type.
+    let out: Box<dyn std::any::Any> = Box::new(out);
+    out.downcast::<Vec<Result<Splat<F>, f32>>>()
+        .ok()
+        .map(|b| *b)
+}
+
 /// Gradients of the inputs given the gradient of the `[H, W, C + 1]` output.
 pub fn backward<F: Real>(
     g: &HostGaussians<'_, F>,
@@ -352,12 +403,30 @@ pub fn backward<F: Real>(
     let slot = SLOT_FIXED + c;
     let bins = &state.bins;
 
-    // Per Gaussian (in parallel, in the input layout): sum its splat's intersection rows in a
-    // fixed order (hence deterministic), then the projection VJP, written in place.
+    // Per Gaussian (in parallel, in the input layout): the sum of its splat's intersection rows
+    // in a fixed order (hence deterministic); zeros where it was culled.
     let mut position = vec![u32::MAX; n];
     for (j, &i) in state.order.iter().enumerate() {
         position[i as usize] = j as u32;
     }
+    let mut sums = vec![F::zero(); n * slot];
+    sums.par_chunks_mut(slot)
+        .zip(position.par_iter())
+        .with_min_len(256)
+        .for_each(|(acc, &j)| {
+            if j == u32::MAX {
+                return;
+            }
+            let [s0, s1] = bins.splat_ranges[j as usize];
+            for &k in &bins.isects_of_splat[s0 as usize..s1 as usize] {
+                let row = &slots[k as usize * slot..(k as usize + 1) * slot];
+                for (a, &r) in acc.iter_mut().zip(row) {
+                    *a = *a + r;
+                }
+            }
+        });
+    // The screen gradients of the opacity and the offsets, and the features' rows, are the
+    // gradients of those inputs; the projection VJP gives the mean's, rotation's and scales'.
     let mut out = HostGradients {
         means: vec![F::zero(); 3 * n],
         quats: vec![F::zero(); 4 * n],
@@ -366,44 +435,71 @@ pub fn backward<F: Real>(
         features: vec![F::zero(); c * n],
         xy_offsets: vec![F::zero(); 2 * n],
     };
-    out.means
-        .par_chunks_mut(3)
-        .zip(out.quats.par_chunks_mut(4))
-        .zip(out.scales.par_chunks_mut(3))
-        .zip(out.opacities.par_iter_mut())
-        .zip(out.features.par_chunks_mut(c))
+    out.opacities
+        .par_iter_mut()
         .zip(out.xy_offsets.par_chunks_mut(2))
-        .zip(position.par_iter())
-        .enumerate()
-        .with_min_len(256)
-        .for_each(|(i, ((((((dm, dq), ds), dop), df), dxy), &j))| {
-            if j == u32::MAX {
-                return; // culled: zero gradients
-            }
-            let [s0, s1] = bins.splat_ranges[j as usize];
-            let mut acc = [F::zero(); SLOT_FIXED];
-            for &k in &bins.isects_of_splat[s0 as usize..s1 as usize] {
-                let row = &slots[k as usize * slot..(k as usize + 1) * slot];
-                for (a, &r) in acc.iter_mut().zip(&row[..SLOT_FIXED]) {
-                    *a = *a + r;
-                }
-                for (a, &r) in df.iter_mut().zip(&row[SLOT_FIXED..]) {
-                    *a = *a + r;
-                }
-            }
-            let gg = project::project_vjp(
-                &g.get(i),
-                &cam,
-                [acc[0], acc[1]],
-                [acc[2], acc[3], acc[4]],
-                acc[5],
-            );
-            dm.copy_from_slice(&gg.mean);
-            dq.copy_from_slice(&gg.quat);
-            ds.copy_from_slice(&gg.scale);
-            *dop = gg.opacity;
-            dxy.copy_from_slice(&gg.xy_offset);
+        .zip(out.features.par_chunks_mut(c))
+        .zip(sums.par_chunks(slot))
+        .with_min_len(1024)
+        .for_each(|(((dop, dxy), df), acc)| {
+            *dop = acc[5];
+            dxy.copy_from_slice(&acc[..2]);
+            df.copy_from_slice(&acc[SLOT_FIXED..]);
         });
+    const RUN: usize = 512;
+    let lanes_f32 = match (as_f32(g), F::slice_as_f32(&sums)) {
+        (Some(g32), Some(sums32)) if state.path != BlendPath::PerPixel => Some((g32, sums32)),
+        _ => None,
+    };
+    if let Some((g32, sums32)) = lanes_f32 {
+        // f32 on a lane path: 16 Gaussians at a time, written in place.
+        let cam16 = CamF::<f32>::new(cfg).lanes();
+        let means = F::slice_as_f32_mut(&mut out.means).expect("f32");
+        let quats = F::slice_as_f32_mut(&mut out.quats).expect("f32");
+        let scales = F::slice_as_f32_mut(&mut out.scales).expect("f32");
+        means
+            .par_chunks_mut(RUN * 3)
+            .zip(quats.par_chunks_mut(RUN * 4))
+            .zip(scales.par_chunks_mut(RUN * 3))
+            .enumerate()
+            .for_each(|(k, ((dm, dq), ds))| {
+                let first = k * RUN;
+                state.path.run(project::VjpLanes {
+                    g: &g32,
+                    cam: &cam16,
+                    first,
+                    visible: &position[first..(first + RUN).min(n)],
+                    sums: &sums32[first * slot..],
+                    stride: slot,
+                    means: dm,
+                    quats: dq,
+                    scales: ds,
+                });
+            });
+    } else {
+        out.means
+            .par_chunks_mut(3)
+            .zip(out.quats.par_chunks_mut(4))
+            .zip(out.scales.par_chunks_mut(3))
+            .zip(sums.par_chunks(slot))
+            .zip(position.par_iter())
+            .enumerate()
+            .with_min_len(256)
+            .for_each(|(i, ((((dm, dq), ds), acc), &j))| {
+                if j == u32::MAX {
+                    return; // culled: zero gradients
+                }
+                let gg = project::project_vjp(
+                    &g.get(i),
+                    &cam,
+                    [acc[0], acc[1]],
+                    [acc[2], acc[3], acc[4]],
+                );
+                dm.copy_from_slice(&gg.mean);
+                dq.copy_from_slice(&gg.quat);
+                ds.copy_from_slice(&gg.scale);
+            });
+    }
     lap(Phase::Gather, start);
     out
 }

@@ -1,6 +1,7 @@
 //! Projection of 3D Gaussians to screen-space conics (EWA splatting) and its vector-Jacobian
 //! product.
 
+use super::arith::{self, F32x16};
 use crate::config::{ALPHA_MIN, FRUSTUM_MARGIN, QUAT_MIN_NORM2, SplatConfig, TILE_SIZE, status};
 use crate::scalar::Real;
 
@@ -24,6 +25,28 @@ pub(crate) struct CamF<F> {
     pub lim_y: [F; 2],
     /// Screen-space blur (pixels^2).
     pub blur: F,
+}
+
+impl CamF<f32> {
+    /// The camera broadcast to 16 lanes.
+    pub fn lanes(&self) -> CamF<F32x16> {
+        let b = |v: f32| F32x16([v; arith::WIDTH]);
+        CamF {
+            rot: self.rot.map(|r| r.map(b)),
+            trans: self.trans.map(b),
+            fx: b(self.fx),
+            fy: b(self.fy),
+            cx: b(self.cx),
+            cy: b(self.cy),
+            width: self.width,
+            height: self.height,
+            near: b(self.near),
+            far: b(self.far),
+            lim_x: self.lim_x.map(b),
+            lim_y: self.lim_y.map(b),
+            blur: b(self.blur),
+        }
+    }
 }
 
 impl<F: Real> CamF<F> {
@@ -106,9 +129,9 @@ impl<F> Splat<F> {
     }
 }
 
-#[inline]
-fn matmul<F: Real>(a: &M3<F>, b: &M3<F>) -> M3<F> {
-    let mut r = [[F::zero(); 3]; 3];
+#[inline(always)]
+fn matmul<T: arith::Arith>(a: &M3<T>, b: &M3<T>) -> M3<T> {
+    let mut r = [[T::c(0.0); 3]; 3];
     for i in 0..3 {
         for j in 0..3 {
             r[i][j] = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
@@ -117,9 +140,9 @@ fn matmul<F: Real>(a: &M3<F>, b: &M3<F>) -> M3<F> {
     r
 }
 
-#[inline]
-fn transpose<F: Real>(a: &M3<F>) -> M3<F> {
-    let mut r = [[F::zero(); 3]; 3];
+#[inline(always)]
+fn transpose<T: arith::Arith>(a: &M3<T>) -> M3<T> {
+    let mut r = [[T::c(0.0); 3]; 3];
     for i in 0..3 {
         for j in 0..3 {
             r[i][j] = a[j][i];
@@ -129,11 +152,11 @@ fn transpose<F: Real>(a: &M3<F>) -> M3<F> {
 }
 
 /// Rotation matrix of a unit quaternion (w, x, y, z).
-#[inline]
-pub(crate) fn quat_to_rot<F: Real>(q: [F; 4]) -> M3<F> {
+#[inline(always)]
+pub(crate) fn quat_to_rot<T: arith::Arith>(q: [T; 4]) -> M3<T> {
     let [w, x, y, z] = q;
-    let one = F::one();
-    let two = F::c(2.0);
+    let one = T::c(1.0);
+    let two = T::c(2.0);
     [
         [
             one - two * (y * y + z * z),
@@ -155,11 +178,11 @@ pub(crate) fn quat_to_rot<F: Real>(q: [F; 4]) -> M3<F> {
 
 /// Gradient of a loss with respect to a unit quaternion, given its gradient `g` with respect
 /// to the rotation matrix.
-#[inline]
-fn quat_to_rot_vjp<F: Real>(q: [F; 4], g: &M3<F>) -> [F; 4] {
+#[inline(always)]
+fn quat_to_rot_vjp<T: arith::Arith>(q: [T; 4], g: &M3<T>) -> [T; 4] {
     let [w, x, y, z] = q;
-    let two = F::c(2.0);
-    let four = F::c(4.0);
+    let two = T::c(2.0);
+    let four = T::c(4.0);
     [
         two * (-z * g[0][1] + y * g[0][2] + z * g[1][0] - x * g[1][2] - y * g[2][0] + x * g[2][1]),
         two * (y * g[0][1] + z * g[0][2] + y * g[1][0] - w * g[1][2] + z * g[2][0] + w * g[2][1])
@@ -172,20 +195,23 @@ fn quat_to_rot_vjp<F: Real>(q: [F; 4], g: &M3<F>) -> [F; 4] {
 }
 
 /// Intermediate values of the projection, kept for the VJP.
-struct Fwd<F> {
-    qn: [F; 4],
-    qnorm: F,
-    rot_q: M3<F>,
-    sigma_c: M3<F>,
-    p: [F; 3],
+pub(crate) struct Fwd<T: arith::Arith> {
+    /// Squared norm of the raw quaternion.
+    n2: T,
+    qn: [T; 4],
+    qnorm: T,
+    rot_q: M3<T>,
+    sigma_c: M3<T>,
+    p: [T; 3],
     /// Whether x/z, y/z were clamped, and the clamp values used.
-    tx: F,
-    ty: F,
-    clamped: [bool; 2],
-    j: [[F; 3]; 2],
+    tx: T,
+    ty: T,
+    clamped: [T::Mask; 2],
+    j: [[T; 3]; 2],
     /// 2D covariance (with blur) as (a, b, c).
-    cov: [F; 3],
-    conic: [F; 3],
+    cov: [T; 3],
+    det: T,
+    conic: [T; 3],
 }
 
 #[inline]
@@ -197,28 +223,25 @@ fn is_finite_in<F: Real>(g: &GaussIn<F>) -> bool {
         && g.xy_offset.iter().all(|v| v.is_finite())
 }
 
-/// Forward projection up to the conic. `Err(status)` when culled before the rectangle test.
-#[inline]
-fn project_core<F: Real>(g: &GaussIn<F>, cam: &CamF<F>) -> Result<Fwd<F>, f32> {
-    if !is_finite_in(g) {
-        return Err(status::NON_FINITE);
-    }
+/// The projection's arithmetic up to the conic, without any test: [`project_core`] decides
+/// from its results whether the Gaussian is culled.
+#[inline(always)]
+pub(crate) fn fwd_math<T: arith::Arith>(
+    mean: [T; 3],
+    quat: [T; 4],
+    scale: [T; 3],
+    cam: &CamF<T>,
+) -> Fwd<T> {
     let r = &cam.rot;
-    let m = g.mean;
+    let m = mean;
     let p = [
         r[0][0] * m[0] + r[0][1] * m[1] + r[0][2] * m[2] + cam.trans[0],
         r[1][0] * m[0] + r[1][1] * m[1] + r[1][2] * m[2] + cam.trans[1],
         r[2][0] * m[0] + r[2][1] * m[1] + r[2][2] * m[2] + cam.trans[2],
     ];
     let z = p[2];
-    if !(z >= cam.near && z <= cam.far) {
-        return Err(status::CLIPPED);
-    }
-    let q = g.quat;
+    let q = quat;
     let n2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
-    if n2.f64() < QUAT_MIN_NORM2 {
-        return Err(status::DEGENERATE);
-    }
     let qnorm = n2.sqrt();
     let qn = q.map(|v| v / qnorm);
     let rot_q = quat_to_rot(qn);
@@ -226,10 +249,10 @@ fn project_core<F: Real>(g: &GaussIn<F>, cam: &CamF<F>) -> Result<Fwd<F>, f32> {
     let mut wm = matmul(r, &rot_q);
     for row in wm.iter_mut() {
         for (k, v) in row.iter_mut().enumerate() {
-            *v = *v * g.scale[k];
+            *v = *v * scale[k];
         }
     }
-    let mut sigma_c = [[F::zero(); 3]; 3];
+    let mut sigma_c = [[T::c(0.0); 3]; 3];
     for i in 0..3 {
         for j in 0..3 {
             sigma_c[i][j] = wm[i][0] * wm[j][0] + wm[i][1] * wm[j][1] + wm[i][2] * wm[j][2];
@@ -239,23 +262,24 @@ fn project_core<F: Real>(g: &GaussIn<F>, cam: &CamF<F>) -> Result<Fwd<F>, f32> {
     let yz = p[1] / z;
     let cxz = xz.max(cam.lim_x[0]).min(cam.lim_x[1]);
     let cyz = yz.max(cam.lim_y[0]).min(cam.lim_y[1]);
-    let clamped = [cxz != xz, cyz != yz];
+    let clamped = [cxz.ne(xz), cyz.ne(yz)];
     let tx = z * cxz;
     let ty = z * cyz;
-    let iz = F::one() / z;
+    let iz = T::c(1.0) / z;
     let iz2 = iz * iz;
+    let zero = T::c(0.0);
     let j = [
-        [cam.fx * iz, F::zero(), -cam.fx * tx * iz2],
-        [F::zero(), cam.fy * iz, -cam.fy * ty * iz2],
+        [cam.fx * iz, zero, -cam.fx * tx * iz2],
+        [zero, cam.fy * iz, -cam.fy * ty * iz2],
     ];
     // cov = J Sigma_c J^T (2x2) + blur.
-    let mut js = [[F::zero(); 3]; 2];
+    let mut js = [[zero; 3]; 2];
     for a in 0..2 {
         for b in 0..3 {
             js[a][b] = j[a][0] * sigma_c[0][b] + j[a][1] * sigma_c[1][b] + j[a][2] * sigma_c[2][b];
         }
     }
-    let dot3 = |u: [F; 3], v: [F; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+    let dot3 = |u: [T; 3], v: [T; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
     let blur = cam.blur;
     let cov = [
         dot3(js[0], j[0]) + blur,
@@ -263,14 +287,9 @@ fn project_core<F: Real>(g: &GaussIn<F>, cam: &CamF<F>) -> Result<Fwd<F>, f32> {
         dot3(js[1], j[1]) + blur,
     ];
     let det = cov[0] * cov[2] - cov[1] * cov[1];
-    if !det.is_finite() || det <= F::zero() {
-        return Err(status::DEGENERATE);
-    }
     let conic = [cov[2] / det, -cov[1] / det, cov[0] / det];
-    if !conic.iter().all(|v| v.is_finite()) {
-        return Err(status::DEGENERATE);
-    }
-    Ok(Fwd {
+    Fwd {
+        n2,
         qn,
         qnorm,
         rot_q,
@@ -281,13 +300,50 @@ fn project_core<F: Real>(g: &GaussIn<F>, cam: &CamF<F>) -> Result<Fwd<F>, f32> {
         clamped,
         j,
         cov,
+        det,
         conic,
-    })
+    }
+}
+
+/// Forward projection up to the conic. `Err(status)` when culled before the rectangle test.
+#[inline]
+fn project_core<F: Real>(g: &GaussIn<F>, cam: &CamF<F>) -> Result<Fwd<F>, f32> {
+    if !is_finite_in(g) {
+        return Err(status::NON_FINITE);
+    }
+    let f = fwd_math(g.mean, g.quat, g.scale, cam);
+    cull_tests(&f, cam)?;
+    Ok(f)
+}
+
+/// The culling tests on the projection's arithmetic of a Gaussian with finite parameters.
+#[inline(always)]
+fn cull_tests<F: Real>(f: &Fwd<F>, cam: &CamF<F>) -> Result<(), f32> {
+    let z = f.p[2];
+    if !(z >= cam.near && z <= cam.far) {
+        return Err(status::CLIPPED);
+    }
+    if f.n2.f64() < QUAT_MIN_NORM2 {
+        return Err(status::DEGENERATE);
+    }
+    if !f.det.is_finite() || f.det <= F::zero() {
+        return Err(status::DEGENERATE);
+    }
+    if !f.conic.iter().all(|v| v.is_finite()) {
+        return Err(status::DEGENERATE);
+    }
+    Ok(())
 }
 
 /// Projects one Gaussian. `Err(status)` when it is culled (see [`crate::config::status`]).
 pub(crate) fn project_one<F: Real>(g: &GaussIn<F>, cam: &CamF<F>) -> Result<Splat<F>, f32> {
     let f = project_core(g, cam)?;
+    on_screen(g, &f, cam)
+}
+
+/// The screen footprint of a Gaussian that passed [`cull_tests`].
+#[inline(always)]
+fn on_screen<F: Real>(g: &GaussIn<F>, f: &Fwd<F>, cam: &CamF<F>) -> Result<Splat<F>, f32> {
     let z = f.p[2];
     let xy = [
         cam.fx * f.p[0] / z + cam.cx + g.xy_offset[0],
@@ -339,33 +395,44 @@ pub(crate) fn project_one<F: Real>(g: &GaussIn<F>, cam: &CamF<F>) -> Result<Spla
     })
 }
 
-/// Gradients of one Gaussian's raw parameters.
+/// Gradients of one Gaussian's mean, rotation and scales (those of the opacity and the screen
+/// offset are the screen gradients themselves).
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct GaussGrad<F> {
     pub mean: [F; 3],
     pub quat: [F; 4],
     pub scale: [F; 3],
-    pub opacity: F,
-    pub xy_offset: [F; 2],
 }
 
-/// Vector-Jacobian product of [`project_one`]: from the gradients of the screen mean, the conic
-/// (a, b, c as stored) and the opacity to the raw parameters.
+/// Vector-Jacobian product of [`project_one`]: from the gradients of the screen mean and the
+/// conic (a, b, c as stored) to the mean, rotation and scales.
 pub(crate) fn project_vjp<F: Real>(
     g: &GaussIn<F>,
     cam: &CamF<F>,
     d_xy: [F; 2],
     d_conic: [F; 3],
-    d_opacity: F,
 ) -> GaussGrad<F> {
     let Ok(f) = project_core(g, cam) else {
         return GaussGrad::default();
     };
-    let zero = F::zero();
-    let two = F::c(2.0);
-    let half = F::c(0.5);
+    vjp_math(&f, g.scale, cam, d_xy, d_conic)
+}
+
+/// The arithmetic of [`project_vjp`] on the forward's intermediates (of a Gaussian that was
+/// not culled).
+#[inline(always)]
+pub(crate) fn vjp_math<T: arith::Arith>(
+    f: &Fwd<T>,
+    scale: [T; 3],
+    cam: &CamF<T>,
+    d_xy: [T; 2],
+    d_conic: [T; 3],
+) -> GaussGrad<T> {
+    let zero = T::c(0.0);
+    let two = T::c(2.0);
+    let half = T::c(0.5);
     let z = f.p[2];
-    let iz = F::one() / z;
+    let iz = T::c(1.0) / z;
     let iz2 = iz * iz;
     let mut d_p = [zero; 3];
     // Screen mean.
@@ -426,17 +493,11 @@ pub(crate) fn project_vjp<F: Real>(
     let d_tx = -d_j[0][2] * cam.fx * iz2;
     let d_ty = -d_j[1][2] * cam.fy * iz2;
     d_p[2] = d_p[2] + two * (d_j[0][2] * cam.fx * f.tx + d_j[1][2] * cam.fy * f.ty) * iz3;
-    if f.clamped[0] {
-        // tx = z * lim.
-        d_p[2] = d_p[2] + d_tx * f.tx / z;
-    } else {
-        d_p[0] = d_p[0] + d_tx;
-    }
-    if f.clamped[1] {
-        d_p[2] = d_p[2] + d_ty * f.ty / z;
-    } else {
-        d_p[1] = d_p[1] + d_ty;
-    }
+    // Where x/z was clamped, tx = z * lim depends on z only.
+    d_p[2] = T::select(f.clamped[0], d_p[2] + d_tx * f.tx / z, d_p[2]);
+    d_p[0] = T::select(f.clamped[0], d_p[0], d_p[0] + d_tx);
+    d_p[2] = T::select(f.clamped[1], d_p[2] + d_ty * f.ty / z, d_p[2]);
+    d_p[1] = T::select(f.clamped[1], d_p[1], d_p[1] + d_ty);
     // p = W m + t.
     let w = &cam.rot;
     let mut d_mean = [zero; 3];
@@ -450,7 +511,7 @@ pub(crate) fn project_vjp<F: Real>(
     let mut m = f.rot_q;
     for row in m.iter_mut() {
         for (k, v) in row.iter_mut().enumerate() {
-            *v = *v * g.scale[k];
+            *v = *v * scale[k];
         }
     }
     let mut d_m = [[zero; 3]; 3];
@@ -468,7 +529,7 @@ pub(crate) fn project_vjp<F: Real>(
     for a in 0..3 {
         for b in 0..3 {
             d_scale[b] = d_scale[b] + d_m[a][b] * f.rot_q[a][b];
-            d_rot[a][b] = d_m[a][b] * g.scale[b];
+            d_rot[a][b] = d_m[a][b] * scale[b];
         }
     }
     let d_qn = quat_to_rot_vjp(f.qn, &d_rot);
@@ -478,7 +539,286 @@ pub(crate) fn project_vjp<F: Real>(
         mean: d_mean,
         quat: d_quat,
         scale: d_scale,
-        opacity: d_opacity,
-        xy_offset: d_xy,
+    }
+}
+
+/// [`vjp_math`] for a run of f32 Gaussians, 16 at a time: Gaussian `first + k` of `g` takes
+/// its summed screen gradients from `sums[k * stride..]` (`d_xy` at 0..2, `d_conic` at 2..5)
+/// and writes the gradients of its mean, quaternion and scales to `means[3 k..]`, `quats[4 k..]`
+/// and `scales[3 k..]`, leaving them where `visible[k]` is `u32::MAX` (culled: its arithmetic
+/// is not used). Bit-identical to [`project_vjp`] on the others.
+pub(crate) struct VjpLanes<'a> {
+    pub g: &'a super::HostGaussians<'a, f32>,
+    pub cam: &'a CamF<F32x16>,
+    pub first: usize,
+    pub visible: &'a [u32],
+    pub sums: &'a [f32],
+    pub stride: usize,
+    pub means: &'a mut [f32],
+    pub quats: &'a mut [f32],
+    pub scales: &'a mut [f32],
+}
+
+impl pulp::WithSimd for VjpLanes<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        vjp_lanes(self);
+    }
+}
+
+#[inline(always)]
+fn vjp_lanes(v: VjpLanes<'_>) {
+    const W: usize = arith::WIDTH;
+    let n = v.visible.len();
+    let mut start = 0;
+    while start < n {
+        let len = W.min(n - start);
+        // Short runs repeat their last Gaussian in the spare lanes, whose results are dropped.
+        let lane = |l: usize| start + l.min(len - 1);
+        let load = |base: &[f32], dim: usize, d: usize| {
+            F32x16(std::array::from_fn(|l| base[(v.first + lane(l)) * dim + d]))
+        };
+        let sum = |d: usize| F32x16(std::array::from_fn(|l| v.sums[lane(l) * v.stride + d]));
+        let mean = [0, 1, 2].map(|d| load(v.g.means, 3, d));
+        let quat = [0, 1, 2, 3].map(|d| load(v.g.quats, 4, d));
+        let scale = [0, 1, 2].map(|d| load(v.g.scales, 3, d));
+        let f = fwd_math(mean, quat, scale, v.cam);
+        let gg = vjp_math(&f, scale, v.cam, [sum(0), sum(1)], [sum(2), sum(3), sum(4)]);
+        for l in 0..len {
+            let k = start + l;
+            if v.visible[k] == u32::MAX {
+                continue;
+            }
+            for d in 0..3 {
+                v.means[3 * k + d] = gg.mean[d].0[l];
+                v.scales[3 * k + d] = gg.scale[d].0[l];
+            }
+            for d in 0..4 {
+                v.quats[4 * k + d] = gg.quat[d].0[l];
+            }
+        }
+        start += len;
+    }
+}
+
+impl Fwd<F32x16> {
+    /// Lane `l` as a scalar.
+    #[inline(always)]
+    fn lane(&self, l: usize) -> Fwd<f32> {
+        let a = |v: &F32x16| v.0[l];
+        let m3 = |m: &M3<F32x16>| m.map(|r| r.map(|v| v.0[l]));
+        Fwd {
+            n2: a(&self.n2),
+            qn: self.qn.map(|v| v.0[l]),
+            qnorm: a(&self.qnorm),
+            rot_q: m3(&self.rot_q),
+            sigma_c: m3(&self.sigma_c),
+            p: self.p.map(|v| v.0[l]),
+            tx: a(&self.tx),
+            ty: a(&self.ty),
+            clamped: self.clamped.map(|m| m[l]),
+            j: self.j.map(|r| r.map(|v| v.0[l])),
+            cov: self.cov.map(|v| v.0[l]),
+            det: a(&self.det),
+            conic: self.conic.map(|v| v.0[l]),
+        }
+    }
+}
+
+/// [`project_one`] for a run of f32 Gaussians, the arithmetic 16 at a time: Gaussian
+/// `first + k` of `g` goes to `out[k]`, culled (`NON_FINITE`) also where one of its `channels`
+/// features is not finite. Bit-identical to [`project_one`].
+pub(crate) struct ProjectLanes<'a> {
+    pub g: &'a super::HostGaussians<'a, f32>,
+    pub channels: usize,
+    pub cam: &'a CamF<f32>,
+    pub cam16: &'a CamF<F32x16>,
+    pub first: usize,
+    pub out: &'a mut [Result<Splat<f32>, f32>],
+}
+
+impl pulp::WithSimd for ProjectLanes<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        project_lanes(self);
+    }
+}
+
+#[inline(always)]
+fn project_lanes(v: ProjectLanes<'_>) {
+    const W: usize = arith::WIDTH;
+    let n = v.out.len();
+    let c = v.channels;
+    let mut start = 0;
+    while start < n {
+        let len = W.min(n - start);
+        let lane = |l: usize| v.first + start + l.min(len - 1);
+        let load = |base: &[f32], dim: usize, d: usize| {
+            F32x16(std::array::from_fn(|l| base[lane(l) * dim + d]))
+        };
+        let mean = [0, 1, 2].map(|d| load(v.g.means, 3, d));
+        let quat = [0, 1, 2, 3].map(|d| load(v.g.quats, 4, d));
+        let scale = [0, 1, 2].map(|d| load(v.g.scales, 3, d));
+        let f = fwd_math(mean, quat, scale, v.cam16);
+        for l in 0..len {
+            let i = v.first + start + l;
+            let gi = v.g.get(i);
+            v.out[start + l] = if v.g.features[i * c..(i + 1) * c]
+                .iter()
+                .any(|x| !x.is_finite())
+                || !is_finite_in(&gi)
+            {
+                Err(status::NON_FINITE)
+            } else {
+                let fl = f.lane(l);
+                cull_tests(&fl, v.cam).and_then(|()| on_screen(&gi, &fl, v.cam))
+            };
+        }
+        start += len;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{RngExt, SeedableRng, rngs::StdRng};
+
+    use super::super::{BlendPath, HostGaussians};
+    use super::*;
+    use crate::AlphaCutoff;
+    use crate::scenes::{HostScene, RandomSceneSpec, random_scene, stiff_cases};
+
+    /// Random scenes with Gaussians beside the frustum (the Jacobian's clamp), and every stiff
+    /// case.
+    fn scenes() -> Vec<HostScene> {
+        let spec = |count, radius, distance, max_scale| RandomSceneSpec {
+            count,
+            channels: 3,
+            size: (96, 80),
+            radius,
+            scale_range: (0.001, max_scale),
+            opacity_range: (0.004, 0.999),
+            distance,
+            fov_x: 0.8,
+        };
+        let mut out = vec![
+            random_scene(11, &spec(997, 1.0, 4.0, 0.5)),
+            random_scene(12, &spec(500, 6.0, 8.0, 3.0)),
+        ];
+        out.extend(stiff_cases().into_iter().map(|c| c.scene));
+        out
+    }
+
+    fn host(h: &super::super::HostBuffers<f32>) -> HostGaussians<'_, f32> {
+        h.host()
+    }
+
+    #[test]
+    fn lane_projection_and_vjp_are_bit_identical_to_the_scalar_code() {
+        let paths: Vec<BlendPath> = [
+            BlendPath::LanesScalar,
+            BlendPath::LanesAvx2,
+            BlendPath::LanesAvx512,
+        ]
+        .into_iter()
+        .filter(|p| p.available())
+        .collect();
+        let mut rng = StdRng::seed_from_u64(3);
+        let mut clamped = 0;
+        for scene in scenes() {
+            let cfg = scene.config(AlphaCutoff::Hard);
+            let buffers = scene.to_f32();
+            let g = host(&buffers);
+            let cam = CamF::<f32>::new(&cfg);
+            let cam16 = cam.lanes();
+            let c = scene.channels;
+            let scalar: Vec<Result<Splat<f32>, f32>> = (0..g.len())
+                .map(|i| {
+                    if g.features[i * c..(i + 1) * c]
+                        .iter()
+                        .any(|f| !f.is_finite())
+                    {
+                        Err(status::NON_FINITE)
+                    } else {
+                        project_one(&g.get(i), &cam)
+                    }
+                })
+                .collect();
+            let visible: Vec<u32> = (0..g.len() as u32)
+                .filter(|&i| scalar[i as usize].is_ok())
+                .collect();
+            clamped += visible
+                .iter()
+                .filter(|&&i| {
+                    let f = project_core(&g.get(i as usize), &cam).unwrap();
+                    f.clamped[0] || f.clamped[1]
+                })
+                .count();
+            // Culled Gaussians are marked `u32::MAX` and get zeros, as in the backward pass.
+            let marks: Vec<u32> = scalar
+                .iter()
+                .map(|r| if r.is_ok() { 0 } else { u32::MAX })
+                .collect();
+            let sums: Vec<f32> = (0..g.len() * 6)
+                .map(|_| rng.random_range(-1.0f32..1.0))
+                .collect();
+            let scalar_vjp: Vec<f32> = (0..g.len())
+                .flat_map(|i| {
+                    let s = &sums[i * 6..i * 6 + 6];
+                    if marks[i] == u32::MAX {
+                        return vec![0.0; 10];
+                    }
+                    let gg = project_vjp(&g.get(i), &cam, [s[0], s[1]], [s[2], s[3], s[4]]);
+                    [gg.mean.as_slice(), &gg.quat, &gg.scale].concat()
+                })
+                .collect();
+            for &path in &paths {
+                let mut lanes = vec![Err(status::NON_FINITE); g.len()];
+                path.run(ProjectLanes {
+                    g: &g,
+                    channels: c,
+                    cam: &cam,
+                    cam16: &cam16,
+                    first: 0,
+                    out: &mut lanes,
+                });
+                assert_eq!(format!("{lanes:?}"), format!("{scalar:?}"), "{path:?}");
+                let (mut dm, mut dq, mut ds) = (
+                    vec![0.0; 3 * g.len()],
+                    vec![0.0; 4 * g.len()],
+                    vec![0.0; 3 * g.len()],
+                );
+                path.run(VjpLanes {
+                    g: &g,
+                    cam: &cam16,
+                    first: 0,
+                    visible: &marks,
+                    sums: &sums,
+                    stride: 6,
+                    means: &mut dm,
+                    quats: &mut dq,
+                    scales: &mut ds,
+                });
+                let vjp: Vec<f32> = (0..g.len())
+                    .flat_map(|i| {
+                        [
+                            &dm[3 * i..3 * i + 3],
+                            &dq[4 * i..4 * i + 4],
+                            &ds[3 * i..3 * i + 3],
+                        ]
+                        .concat()
+                    })
+                    .collect();
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&vjp), bits(&scalar_vjp), "{path:?}");
+            }
+        }
+        assert!(
+            clamped > 10,
+            "only {clamped} Gaussians met the Jacobian's clamp"
+        );
     }
 }
