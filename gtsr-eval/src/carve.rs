@@ -11,7 +11,10 @@
 //!   (`> 0`; nearest pixel), offers `d - z(p) - margin`: positive when `p` lies in front of
 //!   the rendered surface by more than `margin` ([`CarveSettings::margin_footprints`] of that
 //!   view's pixel footprint at `p`), i.e. in the free space the view looked through. Views
-//!   that see `p` behind their surface (occluded, or inside) offer a negative value.
+//!   that see `p` behind their surface (occluded, or inside) offer a negative value. With
+//!   [`CarveSettings::slope_margin`] the margin also grows with the depth step from the pixel
+//!   to its steepest neighbour (where a surface is seen at a grazing angle the nearest pixel's
+//!   depth can be that far off at `p`), and pixels beside one without depth do not vote.
 //! * The views then fall in three groups by `s = d - z(p)`: *free* (`s > margin`: the view
 //!   looked through `p`), *near* (`|s| <= margin`: `p` is where the view saw its surface) and
 //!   *occluded* (`s < -margin`: something in front hides `p`, which says nothing about it).
@@ -54,6 +57,12 @@ pub struct CarveSettings {
     pub margin_footprints: f32,
     /// The least share of free views among the free and near ones (in `[0, 1]`).
     pub min_free_ratio: f32,
+    /// Added to the margin: this many times the depth step to the pixel's steepest
+    /// 4-neighbour, the most a nearest-pixel depth can be off where the surface is seen at a
+    /// grazing angle (finite, `>= 0`; 0 leaves the margin as it is). With it, a pixel beside
+    /// one without depth (the silhouette) does not vote.
+    #[serde(default)]
+    pub slope_margin: f32,
 }
 
 impl Default for CarveSettings {
@@ -62,6 +71,7 @@ impl Default for CarveSettings {
             min_views: 3,
             margin_footprints: 3.0,
             min_free_ratio: 0.5,
+            slope_margin: 0.0,
         }
     }
 }
@@ -79,6 +89,12 @@ impl CarveSettings {
             return Err(EvalError::InvalidArgument(format!(
                 "the carving margin must be finite and >= 0 footprints, not {}",
                 self.margin_footprints
+            )));
+        }
+        if !(self.slope_margin.is_finite() && self.slope_margin >= 0.0) {
+            return Err(EvalError::InvalidArgument(format!(
+                "the carving's slope margin must be finite and >= 0, not {}",
+                self.slope_margin
             )));
         }
         if !(0.0..=1.0).contains(&self.min_free_ratio) {
@@ -101,6 +117,29 @@ pub struct DepthMap<'a> {
     pub depth: &'a [f32],
 }
 
+/// The largest depth difference between pixel `(x, y)` (depth `d`) and its 4-neighbours in the
+/// image; `None` when one of them has no depth.
+fn depth_step(dm: &DepthMap, x: usize, y: usize, d: f32) -> Option<f32> {
+    let (w, h) = (dm.camera.width as usize, dm.camera.height as usize);
+    let mut step = 0.0f32;
+    for (nx, ny) in [
+        (x.wrapping_sub(1), y),
+        (x + 1, y),
+        (x, y.wrapping_sub(1)),
+        (x, y + 1),
+    ] {
+        if nx >= w || ny >= h {
+            continue;
+        }
+        let dn = dm.depth[ny * w + nx];
+        if !(dn.is_finite() && dn > 0.0) {
+            return None;
+        }
+        step = step.max((dn - d).abs());
+    }
+    Some(step)
+}
+
 /// The carving value at `p` (module documentation): the `min_views`-th largest `s - margin`
 /// over the free views when `p` is carved, `None` when it is not.
 fn carve_at(depths: &[DepthMap], p: Vec3, settings: &CarveSettings) -> Option<f32> {
@@ -113,13 +152,21 @@ fn carve_at(depths: &[DepthMap], p: Vec3, settings: &CarveSettings) -> Option<f3
         let Some((uv, z)) = in_image(cam, p) else {
             continue;
         };
-        let pix = (uv.y as usize).min(cam.height as usize - 1) * cam.width as usize
-            + (uv.x as usize).min(cam.width as usize - 1);
-        let d = dm.depth[pix];
+        let (x, y) = (
+            (uv.x as usize).min(cam.width as usize - 1),
+            (uv.y as usize).min(cam.height as usize - 1),
+        );
+        let d = dm.depth[y * cam.width as usize + x];
         if !(d.is_finite() && d > 0.0) {
             continue;
         }
-        let margin = settings.margin_footprints * z / cam.fx;
+        let mut margin = settings.margin_footprints * z / cam.fx;
+        if settings.slope_margin > 0.0 {
+            let Some(step) = depth_step(dm, x, y, d) else {
+                continue;
+            };
+            margin += settings.slope_margin * step;
+        }
         let s = d - z;
         if s < -margin {
             continue;

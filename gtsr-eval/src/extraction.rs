@@ -85,6 +85,10 @@ pub struct MeshConfig {
     #[arg(long = "carve-free-ratio", id = "mesh.carve_free_ratio", value_name = "SHARE",
           default_value_t = 0.5, value_parser = parse_unit)]
     pub carve_free_ratio: f32,
+    /// Carving: added to the margin, this many times the depth step from a view's pixel to its
+    /// steepest neighbour (0: off).
+    #[arg(skip)]
+    pub carve_slope: f32,
     /// Carving: the grid spacing (scene units). Default: 0.75 of the masks' pixel footprint
     /// at the object, at the dataset's resolution.
     #[arg(long = "carve-voxel", id = "mesh.carve_voxel", value_name = "SIZE", value_parser = parse_positive)]
@@ -140,6 +144,7 @@ impl Default for MeshConfig {
             carve_views: CarveSettings::default().min_views as u64,
             carve_margin: CarveSettings::default().margin_footprints,
             carve_free_ratio: CarveSettings::default().min_free_ratio,
+            carve_slope: CarveSettings::default().slope_margin,
             carve_voxel: None,
             voxel: None,
             truncation: None,
@@ -162,6 +167,7 @@ impl MeshConfig {
             min_views: self.carve_views as usize,
             margin_footprints: self.carve_margin,
             min_free_ratio: self.carve_free_ratio,
+            slope_margin: self.carve_slope,
         }
     }
 

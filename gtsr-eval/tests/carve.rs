@@ -200,6 +200,7 @@ fn the_carved_mesh_beats_the_masks_on_the_pit() {
             min_views: 1,
             margin_footprints: 0.0,
             min_free_ratio: 0.0,
+            slope_margin: 0.0,
         },
     )
     .unwrap();
@@ -256,6 +257,14 @@ fn carving_checks_its_inputs() {
         },
         CarveSettings {
             min_free_ratio: 1.5,
+            ..CarveSettings::default()
+        },
+        CarveSettings {
+            slope_margin: f32::NAN,
+            ..CarveSettings::default()
+        },
+        CarveSettings {
+            slope_margin: -0.5,
             ..CarveSettings::default()
         },
     ] {
@@ -380,4 +389,44 @@ fn depth_preparation_keeps_only_what_fusion_may_trust() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("normal"), "{e}");
+}
+
+#[test]
+fn the_slope_margin_keeps_single_views_from_eroding_the_edges() {
+    let s = scene();
+    let masks = mask_views(&s);
+    let single = |slope_margin| CarveSettings {
+        min_views: 1,
+        margin_footprints: 0.0,
+        min_free_ratio: 0.0,
+        slope_margin,
+    };
+    // Points of the solid carved by exact depth maps (with no margin, only a depth read at
+    // the wrong place along a grazing pixel can put them in front of the surface).
+    let dug = |g: &gtsr_eval::Grid| {
+        let [nx, ny, nz] = g.dims;
+        let mut n = 0;
+        for k in 0..nz {
+            for j in 0..ny {
+                for i in 0..nx {
+                    if sdf(g.point(i, j, k)) < 0.0 && g.values[g.index(i, j, k)] > 0.0 {
+                        n += 1;
+                    }
+                }
+            }
+        }
+        n
+    };
+    let plain = carve_grid(&masks, &depth_maps(&s), LO, HI, VOXEL, &single(0.0)).unwrap();
+    let sloped = carve_grid(&masks, &depth_maps(&s), LO, HI, VOXEL, &single(1.0)).unwrap();
+    let (d_plain, d_sloped) = (dug(&plain), dug(&sloped));
+    assert!(
+        d_plain > 0,
+        "nearest-pixel depth at grazing pixels digs: {d_plain}"
+    );
+    assert_eq!(d_sloped, 0, "with the slope margin ({d_plain} without)");
+    assert!(
+        at(&sloped, Vec3::new(0.0, 0.35, 0.0)) > 0.0,
+        "the pit is still carved"
+    );
 }

@@ -41,7 +41,8 @@ pub struct Args {
     /// Training steps. Default: 3000 (1500 on the built-in scene).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     pub iterations: Option<u64>,
-    /// Longest image side after downscaling (pixels). Default: 128 (64 on the built-in scene).
+    /// Longest image side after downscaling by a whole factor (pixels). Default: 256, the
+    /// data's own size where it is smaller (64 on the built-in scene).
     #[arg(long, value_parser = clap::value_parser!(u32).range(8..))]
     pub resolution: Option<u32>,
     /// Components: `full` (the paper's model), the ablations `no-pbr`, `no-fresnel` and
@@ -105,8 +106,11 @@ pub enum Backend {
 
 fn main() {
     // Each training step renders many views; keep their freed buffers in the process instead
-    // of faulting fresh pages in at every render.
-    gtsr_render_kernels::cpu::keep_freed_memory();
+    // of faulting fresh pages in at every render (`GTSR_MALLOC=default` leaves glibc's
+    // defaults, to measure the difference).
+    if std::env::var("GTSR_MALLOC").as_deref() != Ok("default") {
+        gtsr_render_kernels::cpu::keep_freed_memory();
+    }
     let args = Args::parse_with_sources();
     match pipeline::run(&args) {
         Ok(pipeline::Outcome::Finished) => {}

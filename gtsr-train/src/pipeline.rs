@@ -377,7 +377,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
     let resolution = args
         .resolution
         .or(file.as_ref().and_then(|f| f.resolution))
-        .unwrap_or(if args.data.is_none() { 64 } else { 128 });
+        .unwrap_or(if args.data.is_none() { 64 } else { 256 });
     let opts = LoadOptions {
         downscale: Downscale::MaxSide(resolution),
         // Blender/NeRF object scenes are already object-centred; COLMAP scenes are normalised

@@ -76,6 +76,10 @@ pub struct FusionCeilingArgs {
     /// Carving: least free share (gtsr-train's `--carve-free-ratio`).
     #[arg(long, default_value_t = 0.5)]
     pub carve_free_ratio: f32,
+    /// Carving: depth steps to the steepest neighbour added to the margin (the mesh setting
+    /// `carve_slope`; 0: off).
+    #[arg(long, default_value_t = 0.0)]
+    pub carve_slope: f32,
     /// Leave out the TSDF fusions (with `--carve`: only the carving rows).
     #[arg(long)]
     pub no_tsdf: bool,
@@ -353,6 +357,7 @@ fn carve_rows(
         carve_views: args.carve_views as u64,
         carve_margin: args.carve_margin,
         carve_free_ratio: args.carve_free_ratio,
+        carve_slope: args.carve_slope,
         ..MeshConfig::default()
     };
     for bias in std::iter::once(0.0).chain(args.biases.iter().copied()) {
