@@ -117,54 +117,68 @@ pub struct DepthMap<'a> {
     pub depth: &'a [f32],
 }
 
-/// The largest depth difference between pixel `(x, y)` (depth `d`) and its 4-neighbours in the
-/// image; `None` when one of them has no depth.
-fn depth_step(dm: &DepthMap, x: usize, y: usize, d: f32) -> Option<f32> {
+/// Per pixel of `dm`, the largest depth difference to its 4-neighbours in the image; NaN
+/// where one of them (or the pixel itself) has no depth.
+fn depth_steps(dm: &DepthMap) -> Vec<f32> {
     let (w, h) = (dm.camera.width as usize, dm.camera.height as usize);
-    let mut step = 0.0f32;
-    for (nx, ny) in [
-        (x.wrapping_sub(1), y),
-        (x + 1, y),
-        (x, y.wrapping_sub(1)),
-        (x, y + 1),
-    ] {
-        if nx >= w || ny >= h {
-            continue;
-        }
-        let dn = dm.depth[ny * w + nx];
-        if !(dn.is_finite() && dn > 0.0) {
-            return None;
-        }
-        step = step.max((dn - d).abs());
-    }
-    Some(step)
+    let valid = |d: f32| d.is_finite() && d > 0.0;
+    (0..w * h)
+        .map(|pix| {
+            let (x, y) = (pix % w, pix / w);
+            let d = dm.depth[pix];
+            if !valid(d) {
+                return f32::NAN;
+            }
+            let mut step = 0.0f32;
+            for (nx, ny) in [
+                (x.wrapping_sub(1), y),
+                (x + 1, y),
+                (x, y.wrapping_sub(1)),
+                (x, y + 1),
+            ] {
+                if nx < w && ny < h {
+                    let dn = dm.depth[ny * w + nx];
+                    if !valid(dn) {
+                        return f32::NAN;
+                    }
+                    step = step.max((dn - d).abs());
+                }
+            }
+            step
+        })
+        .collect()
 }
 
 /// The carving value at `p` (module documentation): the `min_views`-th largest `s - margin`
-/// over the free views when `p` is carved, `None` when it is not.
-fn carve_at(depths: &[DepthMap], p: Vec3, settings: &CarveSettings) -> Option<f32> {
+/// over the free views when `p` is carved, `None` when it is not. `steps`: each view's
+/// [`depth_steps`] when the settings have a slope margin.
+fn carve_at(
+    depths: &[DepthMap],
+    steps: &[Vec<f32>],
+    p: Vec3,
+    settings: &CarveSettings,
+) -> Option<f32> {
     let k = settings.min_views;
     // The k largest free offers so far, descending.
     let mut top = [f32::NEG_INFINITY; MAX_CARVE_VIEWS];
     let (mut free, mut near) = (0usize, 0usize);
-    for dm in depths {
+    for (k_view, dm) in depths.iter().enumerate() {
         let cam = dm.camera;
         let Some((uv, z)) = in_image(cam, p) else {
             continue;
         };
-        let (x, y) = (
-            (uv.x as usize).min(cam.width as usize - 1),
-            (uv.y as usize).min(cam.height as usize - 1),
-        );
-        let d = dm.depth[y * cam.width as usize + x];
+        let pix = (uv.y as usize).min(cam.height as usize - 1) * cam.width as usize
+            + (uv.x as usize).min(cam.width as usize - 1);
+        let d = dm.depth[pix];
         if !(d.is_finite() && d > 0.0) {
             continue;
         }
         let mut margin = settings.margin_footprints * z / cam.fx;
         if settings.slope_margin > 0.0 {
-            let Some(step) = depth_step(dm, x, y, d) else {
-                continue;
-            };
+            let step = steps[k_view][pix];
+            if step.is_nan() {
+                continue; // beside a pixel without depth
+            }
             margin += settings.slope_margin * step;
         }
         let s = d - z;
@@ -215,6 +229,12 @@ pub fn carve_grid(
             ));
         }
     }
+    // Each view's depth steps, once (not per grid point).
+    let steps: Vec<Vec<f32>> = if settings.slope_margin > 0.0 {
+        depths.iter().map(depth_steps).collect()
+    } else {
+        Vec::new()
+    };
     let mut grid = Grid::from_fn(min, voxel, dims, |p| {
         let Some(hull) = silhouette_distance(masks, p) else {
             return voxel;
@@ -222,7 +242,7 @@ pub fn carve_grid(
         if hull >= 0.0 {
             return hull;
         }
-        match carve_at(depths, p, settings) {
+        match carve_at(depths, &steps, p, settings) {
             Some(c) => hull.max(c),
             None => hull,
         }

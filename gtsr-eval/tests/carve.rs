@@ -96,6 +96,22 @@ fn at(grid: &gtsr_eval::Grid, p: Vec3) -> f32 {
     grid.values[grid.index(c.x as usize, c.y as usize, c.z as usize)]
 }
 
+/// Grid points carved (field > 0) where the solid's signed distance is below `depth`.
+fn carved_below(g: &gtsr_eval::Grid, depth: f32) -> usize {
+    let [nx, ny, nz] = g.dims;
+    let mut n = 0;
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                if sdf(g.point(i, j, k)) < depth && g.values[g.index(i, j, k)] > 0.0 {
+                    n += 1;
+                }
+            }
+        }
+    }
+    n
+}
+
 const LO: Vec3 = Vec3::splat(-0.7);
 const HI: Vec3 = Vec3::splat(0.7);
 const VOXEL: f32 = 0.025;
@@ -151,20 +167,7 @@ fn one_wrong_depth_map_does_not_dig_into_the_object() {
     let honest = carve_grid(&masks, &depth_maps(&s), LO, HI, VOXEL, &settings).unwrap();
     // No point of the solid (deeper than the margin) is carved, and the wrong view changes
     // almost nothing.
-    let dug = |g: &gtsr_eval::Grid| {
-        let [nx, ny, nz] = g.dims;
-        let mut n = 0;
-        for k in 0..nz {
-            for j in 0..ny {
-                for i in 0..nx {
-                    if sdf(g.point(i, j, k)) < -0.05 && g.values[g.index(i, j, k)] > 0.0 {
-                        n += 1;
-                    }
-                }
-            }
-        }
-        n
-    };
+    let dug = |g: &gtsr_eval::Grid| carved_below(g, -0.05);
     assert_eq!(dug(&honest), 0, "carved into the solid by exact depth");
     assert_eq!(dug(&carved), 0, "carved into the solid by one wrong view");
     let changed = carved
@@ -403,20 +406,7 @@ fn the_slope_margin_keeps_single_views_from_eroding_the_edges() {
     };
     // Points of the solid carved by exact depth maps (with no margin, only a depth read at
     // the wrong place along a grazing pixel can put them in front of the surface).
-    let dug = |g: &gtsr_eval::Grid| {
-        let [nx, ny, nz] = g.dims;
-        let mut n = 0;
-        for k in 0..nz {
-            for j in 0..ny {
-                for i in 0..nx {
-                    if sdf(g.point(i, j, k)) < 0.0 && g.values[g.index(i, j, k)] > 0.0 {
-                        n += 1;
-                    }
-                }
-            }
-        }
-        n
-    };
+    let dug = |g: &gtsr_eval::Grid| carved_below(g, 0.0);
     let plain = carve_grid(&masks, &depth_maps(&s), LO, HI, VOXEL, &single(0.0)).unwrap();
     let sloped = carve_grid(&masks, &depth_maps(&s), LO, HI, VOXEL, &single(1.0)).unwrap();
     let (d_plain, d_sloped) = (dug(&plain), dug(&sloped));

@@ -82,10 +82,8 @@ fn time_it(mut f: impl FnMut()) -> (f64, usize) {
 
 fn single(size: u32, count: usize) {
     // As gtsr-train runs the kernels: freed buffers stay in the process between calls
-    // (`GTSR_MALLOC=default` leaves glibc's defaults, as for gtsr-train).
-    if std::env::var("GTSR_MALLOC").as_deref() != Ok("default") {
-        cpu::keep_freed_memory();
-    }
+    // (`GTSR_MALLOC=default` opts out).
+    cpu::keep_freed_memory();
     let scene = random_scene(2024, &RandomSceneSpec::bench(count, size, size));
     let cfg = scene.config(AlphaCutoff::Hard);
     // Work counts from the host kernels (same code the backend runs).

@@ -106,11 +106,8 @@ pub enum Backend {
 
 fn main() {
     // Each training step renders many views; keep their freed buffers in the process instead
-    // of faulting fresh pages in at every render (`GTSR_MALLOC=default` leaves glibc's
-    // defaults, to measure the difference).
-    if std::env::var("GTSR_MALLOC").as_deref() != Ok("default") {
-        gtsr_render_kernels::cpu::keep_freed_memory();
-    }
+    // of faulting fresh pages in at every render (`GTSR_MALLOC=default` opts out).
+    gtsr_render_kernels::cpu::keep_freed_memory();
     let args = Args::parse_with_sources();
     match pipeline::run(&args) {
         Ok(pipeline::Outcome::Finished) => {}

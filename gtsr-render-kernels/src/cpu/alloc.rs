@@ -15,12 +15,16 @@ const MMAP_THRESHOLD_MAX: i32 = 32 << 20;
 /// kernel: blocks up to 32 MiB come from the heap rather than from fresh mappings, and heaps
 /// are not trimmed below 1 GiB of free space at their top, with 64 MiB of slack taken at each
 /// growth. Process-wide: meant to be called once, early, by a binary (gtsr-train and the
-/// kernel benchmark call it), not by a library. Returns whether every setting was accepted;
-/// elsewhere than Linux with glibc it does nothing and returns `false`.
+/// kernel benchmark call it), not by a library. Returns whether every setting was accepted.
+/// It does nothing and returns `false` where the environment sets `GTSR_MALLOC=default` (to
+/// measure the difference) and elsewhere than Linux with glibc.
 ///
 /// The cost is resident memory: what a render freed stays mapped until the process ends,
 /// about one render's working set per thread arena.
 pub fn keep_freed_memory() -> bool {
+    if std::env::var("GTSR_MALLOC").as_deref() == Ok("default") {
+        return false;
+    }
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {
         // SAFETY: mallopt only changes allocator parameters; it is safe to call at any time.

@@ -57,6 +57,14 @@ impl<F: Real> HostGaussians<'_, F> {
         self.opacities.is_empty()
     }
 
+    /// Whether one of Gaussian `i`'s `c` features is NaN or infinite (such a Gaussian is
+    /// culled, status 2).
+    fn feature_not_finite(&self, i: usize, c: usize) -> bool {
+        self.features[i * c..(i + 1) * c]
+            .iter()
+            .any(|f| !f.is_finite())
+    }
+
     fn get(&self, i: usize) -> GaussIn<F> {
         let m = &self.means[3 * i..3 * i + 3];
         let q = &self.quats[4 * i..4 * i + 4];
@@ -254,10 +262,7 @@ fn forward_impl<F: Real>(
                 .into_par_iter()
                 .with_min_len(1024)
                 .map(|i| {
-                    if g.features[i * c..(i + 1) * c]
-                        .iter()
-                        .any(|f| !f.is_finite())
-                    {
+                    if g.feature_not_finite(i, c) {
                         return Err(status::NON_FINITE);
                     }
                     project::project_one(&g.get(i), &cam)

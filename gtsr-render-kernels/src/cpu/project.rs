@@ -542,6 +542,22 @@ pub(crate) fn vjp_math<T: arith::Arith>(
     }
 }
 
+/// Parameters of 16 f32 Gaussians as lanes: the mean, quaternion and scales of Gaussian
+/// `index(l)` of `g` in lane `l`.
+type Lanes16 = ([F32x16; 3], [F32x16; 4], [F32x16; 3]);
+
+#[inline(always)]
+fn load_lanes(g: &super::HostGaussians<'_, f32>, index: impl Fn(usize) -> usize) -> Lanes16 {
+    let load = |base: &[f32], dim: usize, d: usize| {
+        F32x16(std::array::from_fn(|l| base[index(l) * dim + d]))
+    };
+    (
+        [0, 1, 2].map(|d| load(g.means, 3, d)),
+        [0, 1, 2, 3].map(|d| load(g.quats, 4, d)),
+        [0, 1, 2].map(|d| load(g.scales, 3, d)),
+    )
+}
+
 /// [`vjp_math`] for a run of f32 Gaussians, 16 at a time: Gaussian `first + k` of `g` takes
 /// its summed screen gradients from `sums[k * stride..]` (`d_xy` at 0..2, `d_conic` at 2..5)
 /// and writes the gradients of its mean, quaternion and scales to `means[3 k..]`, `quats[4 k..]`
@@ -577,13 +593,8 @@ fn vjp_lanes(v: VjpLanes<'_>) {
         let len = W.min(n - start);
         // Short runs repeat their last Gaussian in the spare lanes, whose results are dropped.
         let lane = |l: usize| start + l.min(len - 1);
-        let load = |base: &[f32], dim: usize, d: usize| {
-            F32x16(std::array::from_fn(|l| base[(v.first + lane(l)) * dim + d]))
-        };
         let sum = |d: usize| F32x16(std::array::from_fn(|l| v.sums[lane(l) * v.stride + d]));
-        let mean = [0, 1, 2].map(|d| load(v.g.means, 3, d));
-        let quat = [0, 1, 2, 3].map(|d| load(v.g.quats, 4, d));
-        let scale = [0, 1, 2].map(|d| load(v.g.scales, 3, d));
+        let (mean, quat, scale) = load_lanes(v.g, |l| v.first + lane(l));
         let f = fwd_math(mean, quat, scale, v.cam);
         let gg = vjp_math(&f, scale, v.cam, [sum(0), sum(1)], [sum(2), sum(3), sum(4)]);
         for l in 0..len {
@@ -656,22 +667,13 @@ fn project_lanes(v: ProjectLanes<'_>) {
     let mut start = 0;
     while start < n {
         let len = W.min(n - start);
-        let lane = |l: usize| v.first + start + l.min(len - 1);
-        let load = |base: &[f32], dim: usize, d: usize| {
-            F32x16(std::array::from_fn(|l| base[lane(l) * dim + d]))
-        };
-        let mean = [0, 1, 2].map(|d| load(v.g.means, 3, d));
-        let quat = [0, 1, 2, 3].map(|d| load(v.g.quats, 4, d));
-        let scale = [0, 1, 2].map(|d| load(v.g.scales, 3, d));
+        // Short runs repeat their last Gaussian in the spare lanes, whose results are dropped.
+        let (mean, quat, scale) = load_lanes(v.g, |l| v.first + start + l.min(len - 1));
         let f = fwd_math(mean, quat, scale, v.cam16);
         for l in 0..len {
             let i = v.first + start + l;
             let gi = v.g.get(i);
-            v.out[start + l] = if v.g.features[i * c..(i + 1) * c]
-                .iter()
-                .any(|x| !x.is_finite())
-                || !is_finite_in(&gi)
-            {
+            v.out[start + l] = if v.g.feature_not_finite(i, c) || !is_finite_in(&gi) {
                 Err(status::NON_FINITE)
             } else {
                 let fl = f.lane(l);
@@ -737,10 +739,7 @@ mod tests {
             let c = scene.channels;
             let scalar: Vec<Result<Splat<f32>, f32>> = (0..g.len())
                 .map(|i| {
-                    if g.features[i * c..(i + 1) * c]
-                        .iter()
-                        .any(|f| !f.is_finite())
-                    {
+                    if g.feature_not_finite(i, c) {
                         Err(status::NON_FINITE)
                     } else {
                         project_one(&g.get(i), &cam)
