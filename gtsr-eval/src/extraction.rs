@@ -110,9 +110,9 @@ pub struct MeshConfig {
     #[arg(long = "mesh-resolution", id = "mesh.mesh_resolution", value_name = "PIXELS",
           value_parser = clap::value_parser!(u32).range(1..))]
     pub mesh_resolution: Option<u32>,
-    /// TSDF: fuse, per pixel, the depth of the surface splat at which the transmittance falls
-    /// to this value (0.5: the median depth of 2DGS) instead of the blended depth of PGSR; the
-    /// test-view depth metrics then measure this depth. In (0, 1).
+    /// Fuse or carve with, per pixel, the depth of the surface splat at which the transmittance
+    /// falls to this value (0.5: the median depth of 2DGS) instead of the blended depth of
+    /// PGSR; the test-view depth metrics then measure this depth. In (0, 1).
     #[arg(skip)]
     pub depth_crossing: Option<f64>,
     /// TSDF on a masked scene: keep the masks' visual hull in the volume, so the surface never
@@ -131,8 +131,8 @@ pub struct MeshConfig {
     /// (or in front of it) are replaced by the hull's depth ([`crate::tsdf::snap_to_hull`]).
     #[arg(skip)]
     pub snap_to_hull: Option<f32>,
-    /// TSDF: keep a depth sample only where this many neighbouring views agree with it
-    /// ([`crate::filter_consistent`]).
+    /// Keep a depth sample (for the TSDF or the carving) only where this many neighbouring
+    /// views agree with it ([`crate::filter_consistent`]); the others cast no vote.
     #[arg(skip)]
     pub depth_consistency: Option<ConsistencySettings>,
 }
@@ -182,7 +182,6 @@ impl MeshConfig {
                 "truncation_footprints",
                 self.truncation_footprints.is_some(),
             ),
-            ("depth_crossing", self.depth_crossing.is_some()),
             (
                 "silhouette_carving",
                 self.silhouette_carving != d.silhouette_carving,
@@ -190,7 +189,6 @@ impl MeshConfig {
             ("fuse_depth", self.fuse_depth != d.fuse_depth),
             ("hull_inside_distance", self.hull_inside_distance),
             ("snap_to_hull", self.snap_to_hull.is_some()),
-            ("depth_consistency", self.depth_consistency.is_some()),
         ]
         .into_iter()
         .filter_map(|(name, set)| set.then_some(name))
@@ -403,12 +401,14 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
         if !config.fuse_depth {
             return Ok((masks.mesh.clone(), notes));
         }
+        let maps = consistent_maps(config, inputs, &mut notes)?;
         let depths: Vec<DepthMap> = inputs
             .views
             .iter()
-            .map(|v| DepthMap {
+            .zip(&maps)
+            .map(|(v, depth)| DepthMap {
                 camera: v.camera,
-                depth: v.depth,
+                depth,
             })
             .collect();
         let voxel = config.carve_voxel.unwrap_or(masks.voxel);
@@ -455,25 +455,7 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
         }
         return Ok((largest_component(&tsdf.extract_mesh()), notes));
     }
-    let mut maps: Vec<Vec<f32>> = inputs.views.iter().map(|v| v.depth.to_vec()).collect();
-    if let Some(c) = &config.depth_consistency {
-        let views: Vec<DepthView> = inputs
-            .views
-            .iter()
-            .zip(&maps)
-            .map(|(v, depth)| DepthView {
-                camera: v.camera,
-                depth,
-            })
-            .collect();
-        let (filtered, stats) = filter_consistent(&views, c)?;
-        notes.push(format!(
-            "depth consistency ({} of {} neighbours within {} footprints): dropped {} of {} \
-             samples",
-            c.min_agree, c.neighbours, c.footprints, stats.dropped, stats.samples
-        ));
-        maps = filtered;
-    }
+    let mut maps = consistent_maps(config, inputs, &mut notes)?;
     if let Some(f) = config.snap_to_hull {
         // The hull from every mask first (depth 0 measures nothing), then each view's depth
         // against it (validate: snapping needs carving, and here every view has a mask).
@@ -504,6 +486,34 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
         tsdf.integrate(v.camera, depth, masks_pending.then_some(v.mask))?;
     }
     Ok((largest_component(&tsdf.extract_mesh()), notes))
+}
+
+/// Every view's depth map, with the samples that fail [`MeshConfig::depth_consistency`] (when
+/// set) zeroed; a note says how many.
+fn consistent_maps(
+    config: &MeshConfig,
+    inputs: &FusionInputs,
+    notes: &mut Vec<String>,
+) -> Result<Vec<Vec<f32>>> {
+    let maps: Vec<Vec<f32>> = inputs.views.iter().map(|v| v.depth.to_vec()).collect();
+    let Some(c) = &config.depth_consistency else {
+        return Ok(maps);
+    };
+    let views: Vec<DepthView> = inputs
+        .views
+        .iter()
+        .zip(&maps)
+        .map(|(v, depth)| DepthView {
+            camera: v.camera,
+            depth,
+        })
+        .collect();
+    let (filtered, stats) = filter_consistent(&views, c)?;
+    notes.push(format!(
+        "depth consistency ({} of {} neighbours within {} footprints): dropped {} of {} samples",
+        c.min_agree, c.neighbours, c.footprints, stats.dropped, stats.samples
+    ));
+    Ok(filtered)
 }
 
 #[cfg(test)]

@@ -370,6 +370,17 @@ pub struct LossWeights {
     #[serde(default)]
     #[arg(skip)]
     pub mask_deficit_only: bool,
+    /// The mask term leaves out the pixels within this many pixels of each view's silhouette
+    /// ([`crate::losses::mask_l1_outside_band`]; 0: every pixel counts, as the paper).
+    #[serde(default)]
+    #[arg(skip)]
+    pub mask_band: u32,
+    /// Stage 2: the weight of the front-layer depth term ([`crate::losses::front_depth`]: the
+    /// blended depth, differentiated through the surface opacities only, against the depth
+    /// where the surface set's transmittance first falls to 0.9; not in the paper, 0: off).
+    #[serde(default)]
+    #[arg(skip)]
+    pub front_depth: f64,
 }
 
 impl Default for LossWeights {
@@ -387,6 +398,8 @@ impl Default for LossWeights {
             spread: 0.0,
             opacity_entropy: 0.0,
             mask_deficit_only: false,
+            mask_band: 0,
+            front_depth: 0.0,
         }
     }
 }

@@ -506,6 +506,31 @@ impl Model {
         Ok(depth_maps(out.image, out.alpha, rays, tiles))
     }
 
+    /// The surface set's blended depth ([`Model::render_depth`]) with only the opacities
+    /// differentiable: positions, shapes and plane features enter as constants, so a loss on
+    /// it changes how opaque each layer is, not where it lies ([`crate::losses::front_depth`]).
+    pub fn render_depth_weights(
+        &self,
+        camera: &Camera,
+        rays: &Tensor<3>,
+    ) -> Result<GeometryMaps, ModelError> {
+        let constant = |t: &Tensor<2>| t.clone().detach().set_require_grad(false);
+        let surf = self.prepare(&self.surface, camera, true, false);
+        let feats = constant(&self.geometry_features(&surf, camera, false, false));
+        let fixed = Prepared {
+            means: constant(&surf.means),
+            quats: constant(&surf.quats),
+            scales: constant(&surf.scales),
+            opacities: surf.opacities.clone(),
+            colours: constant(&surf.colours),
+            normals_w: None,
+            offsets: surf.offsets.as_ref().map(constant),
+        };
+        let out = splat(&fixed, surf.opacities.clone(), feats, camera, self.blur_px2)?;
+        let tiles = radii_and_tiles(out.aux).1;
+        Ok(depth_maps(out.image, out.alpha, rays, tiles))
+    }
+
     /// Per surface Gaussian, whether it is blended at some pixel of `camera` while the
     /// transmittance in front of it is above `threshold` (the surface set alone with its plain
     /// opacity, as the geometry pass blends it). At 0.5 this is PGSR's observation test: a

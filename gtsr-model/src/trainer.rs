@@ -623,10 +623,12 @@ impl Trainer {
             .as_ref()
             .map_or(r.alpha_sh.clone(), |g| g.coverage.clone());
         if let (Some(mask), true) = (&view.mask, w.mask > 0.0) {
-            let term = if stage2 && w.mask_deficit_only {
-                losses::mask_deficit(&coverage, mask)
-            } else {
-                losses::mask_l1(&coverage, mask)
+            let term = match (&view.mask_edge_px, w.mask_band) {
+                _ if stage2 && w.mask_deficit_only => losses::mask_deficit(&coverage, mask),
+                (Some(edge), band) if band > 0 => {
+                    losses::mask_l1_outside_band(&coverage, mask, edge, f64::from(band))
+                }
+                _ => losses::mask_l1(&coverage, mask),
             };
             add("mask", term * w.mask);
         }
@@ -673,6 +675,24 @@ impl Trainer {
                     cfg.multi_view_max_error_px,
                 );
                 add("multi_view", mv.loss * w.multi_view);
+            }
+            if stage2 && w.front_depth > 0.0 {
+                let front = self.model.detached().render_depth_crossing(
+                    &view.camera,
+                    &view.rays,
+                    losses::FRONT_TRANSMITTANCE,
+                )?;
+                let weights = self.model.render_depth_weights(&view.camera, &view.rays)?;
+                passes += 2;
+                tile_splats += weights.tile_splats;
+                let front_valid = valid
+                    .clone()
+                    .bool_and(front.coverage.greater_equal_elem(0.5));
+                add(
+                    "front_depth",
+                    losses::front_depth(&weights.depth, &front.depth, view.camera.fx, &front_valid)
+                        * w.front_depth,
+                );
             }
             if let Some(spread) = &g.spread {
                 add(

@@ -54,6 +54,10 @@ pub struct ViewTensors {
     pub rgb: Tensor<3>,
     /// `[H, W]` mask in `[0, 1]`, when the data has one.
     pub mask: Option<Tensor<2>>,
+    /// `[H, W]` with the mask: per pixel the distance in pixels (the larger of the two axes)
+    /// to the nearest pixel on the other side of the mask's 0.5 level, capped at
+    /// [`MASK_EDGE_CAP`] ([`mask_edge_distance`]).
+    pub mask_edge_px: Option<Tensor<2>>,
     /// `[H, W, 3]` camera-space pixel rays (z = 1).
     pub rays: Tensor<3>,
     /// `[H, W]` PGSR edge weight `(1 - g)^2`, `g` the min-max normalised image gradient.
@@ -99,6 +103,7 @@ impl ViewTensors {
             Some(m) => Some(m.clone()),
             None => None,
         };
+        let edge_px = mask.as_ref().map(|m| mask_edge_distance(m, w, h));
         let rgb = view.rgb.clone();
         let lum = |i: usize| (rgb[3 * i] + rgb[3 * i + 1] + rgb[3 * i + 2]) / 3.0;
         let mk = |i: usize| {
@@ -151,6 +156,7 @@ impl ViewTensors {
             camera: camera.clone(),
             rgb: Tensor::from_data(TensorData::new(rgb.clone(), [h, w, 3]), device),
             mask: mask.map(|m| Tensor::from_data(TensorData::new(m, [h, w]), device)),
+            mask_edge_px: edge_px.map(|d| Tensor::from_data(TensorData::new(d, [h, w]), device)),
             rays: pixel_rays(&camera, device),
             edge_weight: Tensor::from_data(TensorData::new(edge, [h, w]), device),
             smooth_wx: Tensor::from_data(TensorData::new(wx, [h, w - 1]), device),
@@ -162,6 +168,41 @@ impl ViewTensors {
     pub fn size(&self) -> (usize, usize) {
         (self.camera.width as usize, self.camera.height as usize)
     }
+}
+
+/// The largest distance [`mask_edge_distance`] reports.
+pub const MASK_EDGE_CAP: usize = 8;
+
+/// Per pixel of a row-major `w x h` mask, the Chebyshev distance in pixels to the nearest pixel
+/// on the other side of the 0.5 level (1 for the pixels on either side of the silhouette),
+/// capped at [`MASK_EDGE_CAP`]; pixels off the image do not count.
+pub fn mask_edge_distance(mask: &[f32], w: usize, h: usize) -> Vec<f32> {
+    let inside: Vec<bool> = mask.iter().map(|&m| m >= 0.5).collect();
+    let r = MASK_EDGE_CAP as isize;
+    (0..w * h)
+        .map(|p| {
+            let (x, y) = ((p % w) as isize, (p / w) as isize);
+            let me = inside[p];
+            let mut best = MASK_EDGE_CAP;
+            for dy in -r..=r {
+                let yy = y + dy;
+                if yy < 0 || yy >= h as isize {
+                    continue;
+                }
+                for dx in -r..=r {
+                    let xx = x + dx;
+                    let d = dx.unsigned_abs().max(dy.unsigned_abs());
+                    if xx < 0 || xx >= w as isize || d >= best {
+                        continue;
+                    }
+                    if inside[yy as usize * w + xx as usize] != me {
+                        best = d;
+                    }
+                }
+            }
+            best as f32
+        })
+        .collect()
 }
 
 /// Uploads every view of a split ([`ViewTensors::new`] with its index).

@@ -50,11 +50,12 @@ pub struct Args {
     /// the scene shows it does not need; the run's first lines say what).
     #[arg(long, value_enum, default_value_t = Preset::Auto)]
     pub preset: Preset,
-    /// A run's `config.json` (or a bare training configuration): every setting from it, the
-    /// flags given beside it override.
+    /// A run's `config.json` (or a bare training configuration): every setting from it, its
+    /// dataset included; the flags given beside it override.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Continue from `--out/checkpoint.safetensors`.
+    /// Continue from `--out/checkpoint.safetensors`, with the settings and the dataset of
+    /// `--out/config.json` unless `--config` or the flags say otherwise.
     #[arg(long)]
     pub resume: bool,
     /// Evaluations (test PSNR/SSIM, mesh chamfer) along the run for the error-against-time log.

@@ -107,8 +107,10 @@ struct RunState {
 }
 
 /// What `--config` gives: a run's `config.json`, or a bare training configuration (then the
-/// mesh settings are the defaults, and neither the resolution nor the preset is given).
+/// mesh settings are the defaults, and neither the dataset, the resolution nor the preset is
+/// given).
 struct FileConfig {
+    data: Option<PathBuf>,
     train: TrainConfig,
     mesh: MeshConfig,
     resolution: Option<u32>,
@@ -121,6 +123,7 @@ fn read_config(path: &Path) -> Result<FileConfig> {
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     match serde_json::from_str::<ResolvedConfig>(&text) {
         Ok(r) => Ok(FileConfig {
+            data: Some(r.data),
             train: r.train,
             mesh: r.mesh,
             resolution: Some(r.resolution),
@@ -129,6 +132,7 @@ fn read_config(path: &Path) -> Result<FileConfig> {
         }),
         Err(run_err) => match serde_json::from_str::<TrainConfig>(&text) {
             Ok(train) => Ok(FileConfig {
+                data: None,
                 train,
                 mesh: MeshConfig::default(),
                 resolution: None,
@@ -352,32 +356,50 @@ pub fn run(args: &Args) -> Result<Outcome> {
             "--backend wgpu: this gtsr-train was built without its `wgpu` feature; rebuild with the default features or use --backend ndarray"
         );
     }
-    if let Some(d) = &args.data
-        && !d.is_dir()
-    {
-        bail!(
-            "--data {}: {}",
-            d.display(),
-            if d.exists() {
-                "not a folder (give the dataset's folder)"
-            } else {
-                "no such folder"
-            }
-        );
+    // The settings: --config, else with --resume those the run in --out recorded.
+    let own_config = args.out.join("config.json");
+    let config_path = args
+        .config
+        .clone()
+        .or_else(|| (args.resume && own_config.is_file()).then_some(own_config));
+    let file = config_path.as_deref().map(read_config).transpose()?;
+    // The dataset: --data, else the one that configuration names, else the built-in scene.
+    let data_arg = match (&args.data, &file, &config_path) {
+        (Some(d), _, _) => Some((d.clone(), "--data".to_string())),
+        (None, Some(FileConfig { data: Some(d), .. }), Some(p)) => {
+            Some((d.clone(), p.display().to_string()))
+        }
+        _ => None,
+    };
+    if let Some((d, from)) = &data_arg {
+        if !d.is_dir() {
+            bail!(
+                "dataset {} (from {from}): {}",
+                d.display(),
+                if d.exists() {
+                    "not a folder (give the dataset's folder)"
+                } else {
+                    "no such folder"
+                }
+            );
+        }
+        if from != "--data" {
+            println!("dataset {} (from {from})", d.display());
+        }
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    let data_dir = match &args.data {
-        Some(d) => d.clone(),
+    let builtin = data_arg.is_none();
+    let data_dir = match data_arg {
+        Some((d, _)) => d,
         None => ensure_default_scene(&args.scene_cache)?,
     };
     let blender = data_dir.join("transforms_train.json").is_file();
-    let file = args.config.as_deref().map(read_config).transpose()?;
     // A run's own config.json also gives the resolution it trained at.
     let resolution = args
         .resolution
         .or(file.as_ref().and_then(|f| f.resolution))
-        .unwrap_or(if args.data.is_none() { 64 } else { 256 });
+        .unwrap_or(if builtin { 64 } else { 256 });
     let opts = LoadOptions {
         downscale: Downscale::MaxSide(resolution),
         // Blender/NeRF object scenes are already object-centred; COLMAP scenes are normalised
@@ -390,10 +412,10 @@ pub fn run(args: &Args) -> Result<Outcome> {
     if scene.train.is_empty() {
         bail!("{}: no training views", data_dir.display());
     }
-    let iterations = args
-        .iterations
-        .map(|n| n as usize)
-        .unwrap_or(if args.data.is_none() { 1500 } else { 3000 });
+    let iterations =
+        args.iterations
+            .map(|n| n as usize)
+            .unwrap_or(if builtin { 1500 } else { 3000 });
     // With --config the file's preset is the one the settings came from.
     let preset = file.as_ref().and_then(|f| f.preset).unwrap_or(args.preset);
     if file.is_some() && args.given.iter().any(|id| id == "preset") && preset != args.preset {

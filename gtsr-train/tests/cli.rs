@@ -212,6 +212,41 @@ fn trains_a_tiny_scene_and_writes_every_output() {
     assert_eq!(c4["train"]["lr"], c3["train"]["lr"], "{c4}");
     assert_eq!(c4["mesh"]["carve_views"], 4, "{c4}");
     assert_eq!(c4["mesh"]["snap_to_hull"], 2.0, "from the file: {c4}");
+
+    // Without --data, --config's run gives the dataset; the carving takes the crossing depth
+    // and the consistency filter as the TSDF does.
+    let mut carve = c.clone();
+    carve["mesh"] = serde_json::json!({
+        "depth_crossing": 0.9,
+        "depth_consistency": { "neighbours": 8, "min_agree": 2, "footprints": 1.0 },
+    });
+    let carve_path = tmp.path().join("carve.json");
+    std::fs::write(&carve_path, carve.to_string()).unwrap();
+    let other = tmp.path().join("other");
+    let o = Command::new(env!("CARGO_BIN_EXE_gtsr-train"))
+        .args(["--config", carve_path.to_str().unwrap(), "--out"])
+        .arg(&other)
+        .args(["--iterations", "2", "--eval-points", "1"])
+        .output()
+        .expect("running gtsr-train");
+    let log = text(&o);
+    assert!(o.status.success(), "{log}");
+    assert!(
+        log.contains(&format!("dataset {} (from ", scene.display())),
+        "{log}"
+    );
+    assert!(log.contains("depth consistency (2 of 8"), "{log}");
+    // --resume alone continues with the run's own settings and dataset.
+    let o = Command::new(env!("CARGO_BIN_EXE_gtsr-train"))
+        .arg("--out")
+        .arg(&other)
+        .arg("--resume")
+        .output()
+        .expect("running gtsr-train");
+    let log = text(&o);
+    assert!(o.status.success(), "{log}");
+    assert!(log.contains("resuming at step 2 of 2"), "{log}");
+    assert!(log.contains("depth consistency (2 of 8"), "{log}");
 }
 
 #[test]

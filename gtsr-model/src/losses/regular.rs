@@ -44,6 +44,21 @@ pub fn mask_l1(alpha: &Tensor<2>, mask: &Tensor<2>) -> Tensor<1> {
     (alpha.clone() - mask.clone()).abs().mean()
 }
 
+/// [`mask_l1`] with the pixels within `band` pixels of the silhouette left out (`edge_px`:
+/// [`crate::views::mask_edge_distance`]); still the mean over every pixel, so that the term's
+/// scale does not depend on the band. There a surface Gaussian that lies on the surface but is
+/// seen at a grazing angle spills part of its footprint past the silhouette, and the plain term
+/// pulls it inward and fades it.
+pub fn mask_l1_outside_band(
+    alpha: &Tensor<2>,
+    mask: &Tensor<2>,
+    edge_px: &Tensor<2>,
+    band: f64,
+) -> Tensor<1> {
+    let keep = edge_px.clone().greater_elem(band).float();
+    ((alpha.clone() - mask.clone()).abs() * keep).mean()
+}
+
 /// Mean `max(mask - alpha, 0)`: only missing coverage inside the mask counts, not coverage
 /// spilling past it (which a Gaussian centred on the surface does in grazing views).
 pub fn mask_deficit(alpha: &Tensor<2>, mask: &Tensor<2>) -> Tensor<1> {
@@ -65,6 +80,39 @@ pub fn opacity_entropy(logits: &Tensor<2>) -> Tensor<1> {
     // -ln o = softplus(-x), -ln(1 - o) = softplus(x).
     let h = o.clone() * softplus(x.clone().neg()) + (o.neg() + 1.0) * softplus(x);
     h.mean()
+}
+
+/// The transmittance at which [`front_depth`]'s target is taken: the depth of the surface splat
+/// whose blend first takes a pixel's transmittance to 0.9 or below.
+pub const FRONT_TRANSMITTANCE: f64 = 0.9;
+
+/// Front-layer depth (not in the paper): the mean over the `valid` pixels of `|D - D_front|`
+/// in pixel footprints (`D_front / f`), with `D` the blended depth and `D_front` a constant:
+/// the depth at which the surface set's transmittance first falls to [`FRONT_TRANSMITTANCE`]
+/// ([`crate::model::Model::render_depth_crossing`]). A stack of faint layers blends a depth
+/// behind its front; rendered with only the opacities differentiable
+/// ([`crate::model::Model::render_depth_weights`]), descent makes the front layer more opaque
+/// and fades the layers behind it, so that the blend becomes one layer where its front is.
+/// (With the positions free it would draw every layer forward, the front with them, and the
+/// front it is measured against would run away.) Pixels with a non-finite or non-positive
+/// front depth do not count.
+pub fn front_depth(
+    depth: &Tensor<2>,
+    front: &Tensor<2>,
+    focal: f64,
+    valid: &Tensor<2, Bool>,
+) -> Tensor<1> {
+    let front = front.clone().detach();
+    let usable = valid
+        .clone()
+        .bool_and(front.clone().is_finite())
+        .bool_and(front.clone().greater_elem(0.0));
+    let scale = front.clone().clamp_min(1e-6).recip() * focal;
+    let gap = ((depth.clone() - front) * scale)
+        .abs()
+        .mask_fill(usable.clone().bool_not(), 0.0);
+    let count = usable.float().sum().clamp_min(1.0);
+    gap.sum() / count
 }
 
 /// Softening of [`layer_spread`]'s square root, in pixels: keeps its gradient bounded where

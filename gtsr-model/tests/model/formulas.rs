@@ -728,3 +728,98 @@ fn the_mask_deficit_counts_only_missing_coverage_inside_the_mask() {
     let l1 = losses::mask_l1(&alpha, &mask).into_scalar::<f64>();
     assert!((l1 - 1.625 / 4.0).abs() < 1e-6);
 }
+
+#[test]
+fn the_mask_edge_distance_counts_pixels_to_the_other_side_of_the_silhouette() {
+    // A 3x3 square in a 9x9 image: the square's border and the ring around it touch the other
+    // side (1), the square's centre and the next ring out are two away, the image's corners
+    // three.
+    let (w, h) = (9, 9);
+    let mut mask = vec![0.0f32; w * h];
+    for y in 3..6 {
+        for x in 3..6 {
+            mask[y * w + x] = 1.0;
+        }
+    }
+    let d = gtsr_model::views::mask_edge_distance(&mask, w, h);
+    let at = |x: usize, y: usize| d[y * w + x];
+    assert_eq!(at(3, 3), 1.0);
+    assert_eq!(at(2, 2), 1.0);
+    assert_eq!(at(4, 4), 2.0);
+    assert_eq!(at(1, 4), 2.0);
+    assert_eq!(at(8, 8), 3.0);
+    assert_eq!(at(0, 0), 3.0);
+    // A mask with no silhouette is everywhere at the cap.
+    let full = gtsr_model::views::mask_edge_distance(&vec![1.0; w * h], w, h);
+    assert!(
+        full.iter()
+            .all(|&v| v == gtsr_model::views::MASK_EDGE_CAP as f32)
+    );
+}
+
+#[test]
+fn the_mask_band_leaves_out_the_pixels_beside_the_silhouette() {
+    let device = Device::ndarray().autodiff();
+    let t = |v: Vec<f32>| Tensor::<2>::from_data(TensorData::new(v, [1, 4]), &device);
+    // One row: inside, inside | outside, outside; the two pixels beside the edge are 1 away.
+    let mask = t(vec![1.0, 1.0, 0.0, 0.0]);
+    let edge = t(vec![2.0, 1.0, 1.0, 2.0]);
+    let alpha = t(vec![0.5, 0.25, 0.75, 0.125]).require_grad();
+    let band = losses::mask_l1_outside_band(&alpha, &mask, &edge, 1.0);
+    // Only the first and last pixels count: (0.5 + 0.125) / 4.
+    assert!((band.clone().into_scalar::<f64>() - 0.625 / 4.0).abs() < 1e-6);
+    let g = host_vec(alpha.grad(&band.backward()).expect("a gradient"));
+    assert_eq!(g, vec![-0.25, 0.0, 0.0, 0.25]);
+    // Band 0 is the plain L1 term.
+    let none = losses::mask_l1_outside_band(&alpha, &mask, &edge, 0.0).into_scalar::<f64>();
+    let l1 = losses::mask_l1(&alpha, &mask).into_scalar::<f64>();
+    assert!((none - l1).abs() < 1e-7);
+}
+
+#[test]
+fn the_front_depth_term_makes_the_front_layer_opaque_and_moves_nothing() {
+    let device = Device::ndarray().autodiff();
+    // Three facing layers of opacity 0.5 at z-depths 3.8, 4.0, 4.2: the blend lies at 3.914, the
+    // transmittance first falls to 0.9 at the front layer (3.8).
+    let (model, cam) = facing_stack(&[-0.2, 0.0, 0.2], &device);
+    let rays = pixel_rays(&cam, &device);
+    let front = model
+        .render_depth_crossing(&cam, &rays, losses::FRONT_TRANSMITTANCE)
+        .unwrap();
+    let weights = model.render_depth_weights(&cam, &rays).unwrap();
+    let valid = front.coverage.clone().greater_equal_elem(0.5);
+    let loss = losses::front_depth(&weights.depth, &front.depth, cam.fx, &valid);
+    let want = (3.9143 - 3.8) * cam.fx / 3.8;
+    let got = loss.clone().into_scalar::<f64>();
+    assert!((got - want).abs() < 1e-2 * want, "{got} against {want}");
+    let grads = loss.backward();
+    // Descent raises the front layer's opacity most and fades the back layer (the middle one
+    // rises a little: it takes weight from the back one).
+    let g_logit = host_vec(
+        model
+            .surface
+            .req(ParamKind::Opacity)
+            .grad(&grads)
+            .expect("an opacity gradient"),
+    );
+    assert!(
+        g_logit[0] < 0.0 && g_logit[0] < g_logit[1] && g_logit[2] > 0.0,
+        "{g_logit:?}"
+    );
+    // No position, rotation or scale changes.
+    for kind in [ParamKind::Means, ParamKind::Rotations, ParamKind::LogScales] {
+        let g = model.surface.req(kind).grad(&grads);
+        assert!(
+            g.is_none_or(|g| host_vec(g).iter().all(|v| *v == 0.0)),
+            "{kind:?} has a gradient"
+        );
+    }
+    // A pixel without a usable front does not count.
+    let none = losses::front_depth(
+        &weights.depth,
+        &front.depth.clone().mul_scalar(f32::NAN),
+        cam.fx,
+        &valid,
+    );
+    assert_eq!(none.into_scalar::<f64>(), 0.0);
+}
