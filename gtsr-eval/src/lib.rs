@@ -22,6 +22,7 @@ pub mod metrics;
 pub mod report;
 pub mod timeline;
 pub mod tsdf;
+pub mod visible;
 
 pub use carve::{CarveSettings, DepthMap, carve_grid, carve_mesh};
 pub use consistency::{ConsistencySettings, DepthView, filter_consistent};
@@ -42,3 +43,4 @@ pub use metrics::{
 pub use report::{ReportRow, RunMetrics, markdown_table, seed_summary_table};
 pub use timeline::{Timeline, TimelinePoint, plot_png};
 pub use tsdf::{TsdfVolume, default_voxel_for_radius};
+pub use visible::{outer_surface, pixel_visible_faces, winding_numbers};

@@ -381,6 +381,13 @@ pub struct LossWeights {
     #[serde(default)]
     #[arg(skip)]
     pub front_depth: f64,
+    /// Opacity sparsity of the surface set, both stages (not in the paper; 3DGS-MCMC's
+    /// regulariser): this weight times the mean surface opacity
+    /// ([`crate::losses::opacity_l1`]). It fades the surface Gaussians that no other term
+    /// needs, such as the layers hidden behind the front of the surface (0: off).
+    #[serde(default)]
+    #[arg(skip)]
+    pub opacity_l1: f64,
 }
 
 impl Default for LossWeights {
@@ -400,6 +407,7 @@ impl Default for LossWeights {
             mask_deficit_only: false,
             mask_band: 0,
             front_depth: 0.0,
+            opacity_l1: 0.0,
         }
     }
 }
@@ -780,6 +788,8 @@ impl TrainConfig {
             ("weights.mask", self.weights.mask),
             ("weights.spread", self.weights.spread),
             ("weights.opacity_entropy", self.weights.opacity_entropy),
+            ("weights.front_depth", self.weights.front_depth),
+            ("weights.opacity_l1", self.weights.opacity_l1),
         ] {
             if !v.is_finite() || v < 0.0 {
                 bad.push(format!("{name} must be finite and non-negative, got {v}"));

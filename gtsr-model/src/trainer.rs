@@ -639,6 +639,12 @@ impl Trainer {
                     * w.opacity_entropy,
             );
         }
+        if w.opacity_l1 > 0.0 {
+            add(
+                "opacity_l1",
+                losses::opacity_l1(self.model.surface.req(ParamKind::Opacity)) * w.opacity_l1,
+            );
+        }
         if w.flatten > 0.0 {
             add(
                 "flatten",

@@ -85,6 +85,10 @@ pub struct FusionCeilingArgs {
     pub no_tsdf: bool,
 }
 
+/// How near (in pixel footprints) a ground-truth face's centroid must lie to the first hit at
+/// its pixel for that pixel to show it.
+const PIXEL_VISIBLE_FOOTPRINTS: f32 = 0.5;
+
 /// One fusion: the label, whether the masks carve, whether depth is fused, the truncation,
 /// the depth error added.
 struct Variant {
@@ -350,6 +354,32 @@ fn carve_rows(
             masks[0].0.width, masks[0].0.height
         ),
         &hull,
+        t0.elapsed().as_secs_f64(),
+    )?;
+    // What the cameras can see of the ground truth: its outer surface (openings narrower
+    // than a training pixel's footprint sealed), and the faces the training pixels show.
+    // Scored as a reconstruction, each is a floor of any mesh made from these images.
+    let footprint = median_pixel_footprint(eyes.iter(), 0.5 * (lo + hi));
+    let area = gtsr_eval::mesh::surface_area(gt);
+    let t0 = Instant::now();
+    let outer = gtsr_eval::outer_surface(gt, gtsr_eval::visible::OUTER_GRID, footprint)?;
+    score(
+        format!(
+            "floor: the ground truth's outer surface ({:.1} % of its area inside or sealed)",
+            100.0 * (1.0 - gtsr_eval::mesh::surface_area(&outer) / area)
+        ),
+        &outer,
+        t0.elapsed().as_secs_f64(),
+    )?;
+    let t0 = Instant::now();
+    let native_cameras: Vec<gtsr_data::Camera> = masks.iter().map(|(c, _)| *c).collect();
+    let shown = gtsr_eval::pixel_visible_faces(gt, &native_cameras, PIXEL_VISIBLE_FOOTPRINTS)?;
+    score(
+        format!(
+            "floor: the ground-truth faces the training pixels show ({:.1} % of its area shown by none)",
+            100.0 * (1.0 - gtsr_eval::mesh::surface_area(&shown) / area)
+        ),
+        &shown,
         t0.elapsed().as_secs_f64(),
     )?;
     let config = MeshConfig {

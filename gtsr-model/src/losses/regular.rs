@@ -82,6 +82,16 @@ pub fn opacity_entropy(logits: &Tensor<2>) -> Tensor<1> {
     h.mean()
 }
 
+/// Opacity sparsity (not in the paper; 3DGS-MCMC's opacity regulariser): the mean opacity
+/// `logistic(x)` of a set. Its gradient on a logit is `o (1 - o) / n`, small against what the
+/// image, mask and geometric terms give the Gaussians they see; but under Adam (per-parameter
+/// step sizes, epsilon 1e-15) a Gaussian that no other term reaches, a layer hidden behind
+/// the front of the surface, fades at the full opacity rate, so what survives is what some
+/// term needs. Logits are clamped to `[-30, 30]`, finite for any input.
+pub fn opacity_l1(logits: &Tensor<2>) -> Tensor<1> {
+    crate::gaussians::logistic(logits.clone().clamp(-30.0, 30.0)).mean()
+}
+
 /// The transmittance at which [`front_depth`]'s target is taken: the depth of the surface splat
 /// whose blend first takes a pixel's transmittance to 0.9 or below.
 pub const FRONT_TRANSMITTANCE: f64 = 0.9;

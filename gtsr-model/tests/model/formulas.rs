@@ -714,6 +714,40 @@ fn opacity_entropy_is_the_binary_entropy_and_stays_finite_at_extreme_logits() {
 }
 
 #[test]
+fn opacity_l1_is_the_mean_opacity_and_stays_finite_at_extreme_logits() {
+    let device = Device::ndarray().autodiff();
+    let xs = [0.0f64, 2.0, -3.0, 80.0, -80.0, 1e4, -1e4];
+    let t = Tensor::<2>::from_data(
+        TensorData::new(
+            xs.iter().map(|x| *x as f32).collect::<Vec<_>>(),
+            [xs.len(), 1],
+        ),
+        &device,
+    )
+    .require_grad();
+    let loss = losses::opacity_l1(&t);
+    let sigmoid = |x: f64| 1.0 / (1.0 + (-x).exp());
+    let expected = xs.iter().map(|&x| sigmoid(x)).sum::<f64>() / xs.len() as f64;
+    let value = loss.clone().into_scalar::<f64>();
+    assert!(
+        (value - expected).abs() < 1e-6,
+        "{value} against {expected}"
+    );
+    let g = host_vec(t.grad(&loss.backward()).expect("a gradient"));
+    for (x, g) in xs.iter().zip(&g) {
+        // d/dx of the mean opacity: o (1 - o) / n, never negative: descent only fades.
+        let o = sigmoid(*x);
+        let want = o * (1.0 - o) / xs.len() as f64;
+        assert!(g.is_finite() && *g >= 0.0, "logit {x}: gradient {g}");
+        assert!(
+            (f64::from(*g) - want).abs() < 1e-6,
+            "logit {x}: {g} against {want}"
+        );
+    }
+    assert!(g[0] > 0.0, "the gradient at logit 0 is 1/(4n)");
+}
+
+#[test]
 fn the_mask_deficit_counts_only_missing_coverage_inside_the_mask() {
     let device = Device::ndarray().autodiff();
     let t = |v: Vec<f32>| Tensor::<2>::from_data(TensorData::new(v, [2, 2]), &device);
