@@ -63,6 +63,13 @@ pub struct CarveSettings {
     /// one without depth (the silhouette) does not vote.
     #[serde(default)]
     pub slope_margin: f32,
+    /// Read each view's depth at the point's projection bilinearly between the four pixel
+    /// centres around it (where all four have depth) instead of at the nearest pixel: on a
+    /// surface seen at a grazing angle the nearest pixel's depth is off by up to half the step
+    /// to its neighbour, the bilinear one by the surface's curvature only. A view where one of
+    /// the four has no depth (beside the silhouette) does not vote.
+    #[serde(default)]
+    pub bilinear: bool,
 }
 
 impl Default for CarveSettings {
@@ -72,6 +79,7 @@ impl Default for CarveSettings {
             margin_footprints: 3.0,
             min_free_ratio: 0.5,
             slope_margin: 0.0,
+            bilinear: false,
         }
     }
 }
@@ -149,6 +157,25 @@ fn depth_steps(dm: &DepthMap) -> Vec<f32> {
         .collect()
 }
 
+/// The depth at continuous pixel coordinates `uv`, interpolated bilinearly between the four
+/// pixel centres around it; `None` when one of them has no depth or lies outside the image.
+fn bilinear_depth(dm: &DepthMap, uv: glam::Vec2) -> Option<f32> {
+    let (w, h) = (dm.camera.width as usize, dm.camera.height as usize);
+    let (x, y) = (uv.x - 0.5, uv.y - 0.5);
+    let (x0, y0) = (x.floor(), y.floor());
+    if x0 < 0.0 || y0 < 0.0 || x0 as usize + 1 >= w || y0 as usize + 1 >= h {
+        return None;
+    }
+    let (fx, fy) = (x - x0, y - y0);
+    let (i, j) = (x0 as usize, y0 as usize);
+    let at = |i: usize, j: usize| {
+        let d = dm.depth[j * w + i];
+        (d.is_finite() && d > 0.0).then_some(d)
+    };
+    let (d00, d10, d01, d11) = (at(i, j)?, at(i + 1, j)?, at(i, j + 1)?, at(i + 1, j + 1)?);
+    Some((d00 * (1.0 - fx) + d10 * fx) * (1.0 - fy) + (d01 * (1.0 - fx) + d11 * fx) * fy)
+}
+
 /// The carving value at `p` (module documentation): the `min_views`-th largest `s - margin`
 /// over the free views when `p` is carved, `None` when it is not. `steps`: each view's
 /// [`depth_steps`] when the settings have a slope margin.
@@ -169,9 +196,15 @@ fn carve_at(
         };
         let pix = (uv.y as usize).min(cam.height as usize - 1) * cam.width as usize
             + (uv.x as usize).min(cam.width as usize - 1);
-        let d = dm.depth[pix];
+        let mut d = dm.depth[pix];
         if !(d.is_finite() && d > 0.0) {
             continue;
+        }
+        if settings.bilinear {
+            match bilinear_depth(dm, uv) {
+                Some(b) => d = b,
+                None => continue, // beside a pixel without depth
+            }
         }
         let mut margin = settings.margin_footprints * z / cam.fx;
         if settings.slope_margin > 0.0 {

@@ -89,6 +89,12 @@ pub struct MeshConfig {
     /// steepest neighbour (0: off).
     #[arg(skip)]
     pub carve_slope: f32,
+    /// Carving: read each view's depth bilinearly at the point's projection, and take no vote
+    /// from a view where one of the four pixels around it has no depth (false: the nearest
+    /// pixel).
+    #[serde(default)]
+    #[arg(skip)]
+    pub carve_bilinear: bool,
     /// Carving: the grid spacing (scene units). Default: 0.75 of the masks' pixel footprint
     /// at the object, at the dataset's resolution.
     #[arg(long = "carve-voxel", id = "mesh.carve_voxel", value_name = "SIZE", value_parser = parse_positive)]
@@ -145,6 +151,7 @@ impl Default for MeshConfig {
             carve_margin: CarveSettings::default().margin_footprints,
             carve_free_ratio: CarveSettings::default().min_free_ratio,
             carve_slope: CarveSettings::default().slope_margin,
+            carve_bilinear: CarveSettings::default().bilinear,
             carve_voxel: None,
             voxel: None,
             truncation: None,
@@ -168,6 +175,7 @@ impl MeshConfig {
             margin_footprints: self.carve_margin,
             min_free_ratio: self.carve_free_ratio,
             slope_margin: self.carve_slope,
+            bilinear: self.carve_bilinear,
         }
     }
 

@@ -80,6 +80,10 @@ pub struct FusionCeilingArgs {
     /// `carve_slope`; 0: off).
     #[arg(long, default_value_t = 0.0)]
     pub carve_slope: f32,
+    /// Carving: read the depth bilinearly at each point's projection (the mesh setting
+    /// `carve_bilinear`).
+    #[arg(long)]
+    pub carve_bilinear: bool,
     /// Leave out the TSDF fusions (with `--carve`: only the carving rows).
     #[arg(long)]
     pub no_tsdf: bool,
@@ -388,6 +392,7 @@ fn carve_rows(
         carve_margin: args.carve_margin,
         carve_free_ratio: args.carve_free_ratio,
         carve_slope: args.carve_slope,
+        carve_bilinear: args.carve_bilinear,
         ..MeshConfig::default()
     };
     for bias in std::iter::once(0.0).chain(args.biases.iter().copied()) {
