@@ -282,13 +282,11 @@ pub fn outer_surface(mesh: &TriMesh, grid: usize, min_gap: f32) -> Result<TriMes
     let mut blocked = solid.clone();
     let mut near = Vec::new();
     if ball.len() > 1 {
-        for v in 0..solid.len() {
-            if solid[v] {
-                neighbours(v, &ball, &mut near);
-                if near.iter().any(|&u| !solid[u]) {
-                    for &u in &near {
-                        blocked[u] = true;
-                    }
+        for (v, _) in solid.iter().enumerate().filter(|(_, s)| **s) {
+            neighbours(v, &ball, &mut near);
+            if near.iter().any(|&u| !solid[u]) {
+                for &u in &near {
+                    blocked[u] = true;
                 }
             }
         }
@@ -324,13 +322,11 @@ pub fn outer_surface(mesh: &TriMesh, grid: usize, min_gap: f32) -> Result<TriMes
     // The exterior: the empty voxels the ball covers from the centres it reached.
     let mut exterior = reached.clone();
     if ball.len() > 1 {
-        for v in 0..solid.len() {
-            if reached[v] {
-                neighbours(v, &ball, &mut near);
-                if near.iter().any(|&u| blocked[u]) {
-                    for &u in &near {
-                        exterior[u] |= !solid[u];
-                    }
+        for (v, _) in reached.iter().enumerate().filter(|(_, r)| **r) {
+            neighbours(v, &ball, &mut near);
+            if near.iter().any(|&u| blocked[u]) {
+                for &u in &near {
+                    exterior[u] |= !solid[u];
                 }
             }
         }
