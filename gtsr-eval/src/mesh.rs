@@ -55,6 +55,11 @@ pub fn face_normal_scaled(mesh: &TriMesh, t: [u32; 3]) -> Vec3 {
     (b - a).cross(c - a)
 }
 
+/// The centroid of triangle `t`.
+pub fn face_centroid(mesh: &TriMesh, t: [u32; 3]) -> Vec3 {
+    t.iter().map(|&i| mesh.positions[i as usize]).sum::<Vec3>() / 3.0
+}
+
 /// Total surface area.
 pub fn surface_area(mesh: &TriMesh) -> f64 {
     mesh.triangles

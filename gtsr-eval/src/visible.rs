@@ -31,7 +31,7 @@ use rayon::prelude::*;
 
 use crate::depth::MeshRaycaster;
 use crate::error::{EvalError, Result};
-use crate::mesh::face_normal_scaled;
+use crate::mesh::{face_centroid, face_normal_scaled};
 
 /// Faces binned by their footprint on the plane perpendicular to one ray direction. The mesh
 /// is turned by `turn` so that the rays run along `+z`; the three directions are near the
@@ -176,36 +176,68 @@ fn ray_turns() -> [glam::Mat3; 3] {
     ]
 }
 
+/// The three [`RayGrid`]s of a mesh: the winding number at any point.
+struct Winding<'a> {
+    mesh: &'a TriMesh,
+    grids: Vec<RayGrid>,
+}
+
+impl<'a> Winding<'a> {
+    fn new(mesh: &'a TriMesh) -> Result<Self> {
+        if mesh.triangles.is_empty() {
+            return Err(EvalError::InvalidArgument(
+                "winding numbers need a mesh with faces".into(),
+            ));
+        }
+        let grids = ray_turns()
+            .into_iter()
+            .map(|t| RayGrid::new(mesh, t))
+            .collect();
+        Ok(Winding { mesh, grids })
+    }
+
+    /// The median of the three directions' counts at `p`.
+    fn at(&self, p: Vec3) -> i32 {
+        let mut w = [0i32; 3];
+        for (w, g) in w.iter_mut().zip(&self.grids) {
+            *w = g.crossings(self.mesh, p);
+        }
+        w.sort_unstable();
+        w[1]
+    }
+}
+
 /// Winding numbers of a closed mesh at many points (module documentation): for a closed,
 /// outward-wound mesh 0 outside, 1 inside one part, `k` where `k` parts overlap. Points on
 /// the surface itself get either side's value. Errors on a mesh without faces or a
 /// non-finite point. Parallel (rayon).
 pub fn winding_numbers(mesh: &TriMesh, points: &[Vec3]) -> Result<Vec<i32>> {
-    if mesh.triangles.is_empty() {
-        return Err(EvalError::InvalidArgument(
-            "winding numbers need a mesh with faces".into(),
-        ));
-    }
     if let Some(i) = points.iter().position(|p| !p.is_finite()) {
         return Err(EvalError::InvalidArgument(format!(
             "point {i} of the winding-number query is not finite"
         )));
     }
-    let grids: Vec<RayGrid> = ray_turns()
-        .into_iter()
-        .map(|t| RayGrid::new(mesh, t))
+    let winding = Winding::new(mesh)?;
+    Ok(points.par_iter().map(|&p| winding.at(p)).collect())
+}
+
+/// The faces of `mesh` that `keep` flags (one flag a face), on its vertices; `none` is the
+/// error when no face is kept.
+fn faces_kept(mesh: &TriMesh, keep: &[bool], none: &str) -> Result<TriMesh> {
+    let triangles: Vec<[u32; 3]> = mesh
+        .triangles
+        .iter()
+        .zip(keep)
+        .filter(|(_, k)| **k)
+        .map(|(t, _)| *t)
         .collect();
-    Ok(points
-        .par_iter()
-        .map(|&p| {
-            let mut w = grids
-                .iter()
-                .map(|g| g.crossings(mesh, p))
-                .collect::<Vec<_>>();
-            w.sort_unstable();
-            w[1]
-        })
-        .collect())
+    if triangles.is_empty() {
+        return Err(EvalError::InvalidArgument(none.into()));
+    }
+    Ok(TriMesh {
+        positions: mesh.positions.clone(),
+        triangles,
+    })
 }
 
 /// Voxels along the longest side of the box in [`outer_surface`]'s grid, for a ground truth
@@ -247,15 +279,11 @@ pub fn outer_surface(mesh: &TriMesh, grid: usize, min_gap: f32) -> Result<TriMes
     let centre = |i: usize, j: usize, k: usize| {
         origin + (Vec3::new(i as f32, j as f32, k as f32) + 0.5) * voxel
     };
-    let solid: Vec<bool> = {
-        let centres: Vec<Vec3> = (0..nx * ny * nz)
-            .map(|v| centre(v % nx, (v / nx) % ny, v / (nx * ny)))
-            .collect();
-        winding_numbers(mesh, &centres)?
-            .into_iter()
-            .map(|w| w != 0)
-            .collect()
-    };
+    let winding = Winding::new(mesh)?;
+    let solid: Vec<bool> = (0..nx * ny * nz)
+        .into_par_iter()
+        .map(|v| winding.at(centre(v % nx, (v / nx) % ny, v / (nx * ny))) != 0)
+        .collect();
     let coords = |v: usize| (v % nx, (v / nx) % ny, v / (nx * ny));
     // Offsets within the ball (none beyond the voxel itself when the radius is below one).
     let ball: Vec<(i64, i64, i64)> = (-reach..=reach)
@@ -338,15 +366,15 @@ pub fn outer_surface(mesh: &TriMesh, grid: usize, min_gap: f32) -> Result<TriMes
         }
         Some(g.x as usize + nx * (g.y as usize + ny * g.z as usize))
     };
-    let triangles: Vec<[u32; 3]> = mesh
+    let outer: Vec<bool> = mesh
         .triangles
         .par_iter()
-        .filter(|t| {
-            let n = face_normal_scaled(mesh, **t).normalize_or_zero();
+        .map(|t| {
+            let n = face_normal_scaled(mesh, *t).normalize_or_zero();
             if n == Vec3::ZERO {
                 return false;
             }
-            let c = t.iter().map(|&i| mesh.positions[i as usize]).sum::<Vec3>() / 3.0;
+            let c = face_centroid(mesh, *t);
             for step in [0.5f32, 1.0, 1.5, 2.0, 2.5, 3.0] {
                 match voxel_of(c + step * voxel * n) {
                     None => return true,
@@ -356,17 +384,12 @@ pub fn outer_surface(mesh: &TriMesh, grid: usize, min_gap: f32) -> Result<TriMes
             }
             false
         })
-        .copied()
         .collect();
-    if triangles.is_empty() {
-        return Err(EvalError::InvalidArgument(
-            "no face of the mesh faces the space outside it (is it wound inward?)".into(),
-        ));
-    }
-    Ok(TriMesh {
-        positions: mesh.positions.clone(),
-        triangles,
-    })
+    faces_kept(
+        mesh,
+        &outer,
+        "no face of the mesh faces the space outside it (is it wound inward?)",
+    )
 }
 
 /// The faces of `mesh` that the pixels of `cameras` show: those whose centroid, projected
@@ -391,44 +414,38 @@ pub fn pixel_visible_faces(
     }
     let caster = MeshRaycaster::new(mesh, "the mesh of the pixel visibility")?;
     let maps: Vec<_> = cameras.iter().map(|c| caster.render(c)).collect();
+    let eyes: Vec<Vec3> = cameras.iter().map(|c| c.centre()).collect();
     let shown: Vec<bool> = mesh
         .triangles
         .par_iter()
         .map(|t| {
             let n = face_normal_scaled(mesh, *t);
-            let c = t.iter().map(|&i| mesh.positions[i as usize]).sum::<Vec3>() / 3.0;
-            cameras.iter().zip(&maps).any(|(cam, map)| {
-                if n.dot(cam.centre() - c) <= 0.0 {
-                    return false; // faces away
-                }
-                let Some((uv, z)) = cam.project(c) else {
-                    return false;
-                };
-                let (i, j) = (uv.x.floor(), uv.y.floor());
-                if i < 0.0 || j < 0.0 || i >= map.width as f32 || j >= map.height as f32 {
-                    return false;
-                }
-                let d = map.depth[j as usize * map.width + i as usize];
-                d > 0.0 && (d - z).abs() <= tolerance * z / cam.fx
-            })
+            let c = face_centroid(mesh, *t);
+            cameras
+                .iter()
+                .zip(&maps)
+                .zip(&eyes)
+                .any(|((cam, map), eye)| {
+                    if n.dot(*eye - c) <= 0.0 {
+                        return false; // faces away
+                    }
+                    let Some((uv, z)) = cam.project(c) else {
+                        return false;
+                    };
+                    let (i, j) = (uv.x.floor(), uv.y.floor());
+                    if i < 0.0 || j < 0.0 || i >= map.width as f32 || j >= map.height as f32 {
+                        return false;
+                    }
+                    let d = map.depth[j as usize * map.width + i as usize];
+                    d > 0.0 && (d - z).abs() <= tolerance * z / cam.fx
+                })
         })
         .collect();
-    let triangles: Vec<[u32; 3]> = mesh
-        .triangles
-        .iter()
-        .zip(&shown)
-        .filter(|(_, s)| **s)
-        .map(|(t, _)| *t)
-        .collect();
-    if triangles.is_empty() {
-        return Err(EvalError::InvalidArgument(
-            "no face of the mesh is shown by any pixel of the cameras".into(),
-        ));
-    }
-    Ok(TriMesh {
-        positions: mesh.positions.clone(),
-        triangles,
-    })
+    faces_kept(
+        mesh,
+        &shown,
+        "no face of the mesh is shown by any pixel of the cameras",
+    )
 }
 
 #[cfg(test)]
@@ -480,7 +497,7 @@ mod tests {
         let kept: std::collections::HashSet<[u32; 3]> = outer.triangles.iter().copied().collect();
         let (mut dropped, mut checked) = (0, 0);
         for (f, t) in mesh.triangles.iter().enumerate() {
-            let c = t.iter().map(|&i| mesh.positions[i as usize]).sum::<Vec3>() / 3.0;
+            let c = face_centroid(&mesh, *t);
             let gap = if f < n_big { to_small(c) } else { to_big(c) };
             if gap.abs() < 0.1 {
                 continue;
@@ -601,7 +618,7 @@ mod tests {
         let to_small = |p: Vec3| (p - Vec3::new(0.9, 0.0, 0.0)).length() - 0.5;
         let (mut outside, mut outside_kept) = (0, 0);
         for (f, t) in mesh.triangles.iter().enumerate() {
-            let c = t.iter().map(|&i| mesh.positions[i as usize]).sum::<Vec3>() / 3.0;
+            let c = face_centroid(&mesh, *t);
             let gap = if f < n_big { to_small(c) } else { to_big(c) };
             if gap < -0.05 {
                 assert!(!kept.contains(t), "buried face {f} at {c} is shown");

@@ -672,18 +672,22 @@ fn initial_scales_are_the_mean_three_neighbour_distance() {
     );
 }
 
+/// Opacity logits from ordinary to far beyond f32's logistic range.
+const EXTREME_LOGITS: [f64; 7] = [0.0, 2.0, -3.0, 80.0, -80.0, 1e4, -1e4];
+
+/// `xs` as a differentiable `[n, 1]` column on the autodiff CPU device.
+fn logit_column(xs: &[f64]) -> Tensor<2> {
+    let data = TensorData::new(
+        xs.iter().map(|x| *x as f32).collect::<Vec<_>>(),
+        [xs.len(), 1],
+    );
+    Tensor::<2>::from_data(data, &Device::ndarray().autodiff()).require_grad()
+}
+
 #[test]
 fn opacity_entropy_is_the_binary_entropy_and_stays_finite_at_extreme_logits() {
-    let device = Device::ndarray().autodiff();
-    let xs = [0.0f64, 2.0, -3.0, 80.0, -80.0, 1e4, -1e4];
-    let t = Tensor::<2>::from_data(
-        TensorData::new(
-            xs.iter().map(|x| *x as f32).collect::<Vec<_>>(),
-            [xs.len(), 1],
-        ),
-        &device,
-    )
-    .require_grad();
+    let xs = EXTREME_LOGITS;
+    let t = logit_column(&xs);
     let loss = losses::opacity_entropy(&t);
     let value = loss.clone().into_scalar::<f64>();
     let expected: f64 = xs
@@ -715,16 +719,8 @@ fn opacity_entropy_is_the_binary_entropy_and_stays_finite_at_extreme_logits() {
 
 #[test]
 fn opacity_l1_is_the_mean_opacity_and_stays_finite_at_extreme_logits() {
-    let device = Device::ndarray().autodiff();
-    let xs = [0.0f64, 2.0, -3.0, 80.0, -80.0, 1e4, -1e4];
-    let t = Tensor::<2>::from_data(
-        TensorData::new(
-            xs.iter().map(|x| *x as f32).collect::<Vec<_>>(),
-            [xs.len(), 1],
-        ),
-        &device,
-    )
-    .require_grad();
+    let xs = EXTREME_LOGITS;
+    let t = logit_column(&xs);
     let loss = losses::opacity_l1(&t);
     let sigmoid = |x: f64| 1.0 / (1.0 + (-x).exp());
     let expected = xs.iter().map(|&x| sigmoid(x)).sum::<f64>() / xs.len() as f64;
