@@ -15,6 +15,13 @@
 //!   [`CarveSettings::slope_margin`] the margin also grows with the depth step from the pixel
 //!   to its steepest neighbour (where a surface is seen at a grazing angle the nearest pixel's
 //!   depth can be that far off at `p`), and pixels beside one without depth do not vote.
+//! * With [`CarveSettings::concavity_gate`], a view's free vote counts only where its depth at
+//!   that pixel lies more than the gate (in footprints, stretched where the masks' surface is
+//!   seen at a grazing angle) behind the masks' own depth on the same ray
+//!   ([`DepthMap::hull_depth`]): where the view looks into a concavity the masks cannot see.
+//!   Elsewhere the masks place the surface better than a rendered depth that runs a footprint
+//!   or two behind it, and a single view may carve a concavity that only it sees without
+//!   eroding the rest.
 //! * The views then fall in three groups by `s = d - z(p)`: *free* (`s > margin`: the view
 //!   looked through `p`), *near* (`|s| <= margin`: `p` is where the view saw its surface) and
 //!   *occluded* (`s < -margin`: something in front hides `p`, which says nothing about it).
@@ -70,6 +77,18 @@ pub struct CarveSettings {
     /// the four has no depth (beside the silhouette) does not vote.
     #[serde(default)]
     pub bilinear: bool,
+    /// A view's free vote counts only where, at the point's pixel, its depth lies more than
+    /// this many footprints behind the masks' hull's depth ([`DepthMap::hull_depth`]): where
+    /// the view looks into a concavity the masks cannot see. Elsewhere the masks already place
+    /// the surface better than a rendered depth can, and the view does not vote (finite,
+    /// `>= 0`; 0: off).
+    #[serde(default)]
+    pub concavity_gate: f32,
+    /// With the concavity gate: the pixels this far on both sides of the pixel along one of
+    /// the four lines through it (row, column, diagonals) must pass it too, so that a lone
+    /// pixel whose depth ran deep does not carve; a slot one pixel wide still passes.
+    #[serde(default)]
+    pub gate_radius: usize,
 }
 
 impl Default for CarveSettings {
@@ -80,6 +99,8 @@ impl Default for CarveSettings {
             min_free_ratio: 0.5,
             slope_margin: 0.0,
             bilinear: false,
+            concavity_gate: 0.0,
+            gate_radius: 0,
         }
     }
 }
@@ -105,6 +126,12 @@ impl CarveSettings {
                 self.slope_margin
             )));
         }
+        if !(self.concavity_gate.is_finite() && self.concavity_gate >= 0.0) {
+            return Err(EvalError::InvalidArgument(format!(
+                "the carving's concavity gate must be finite and >= 0 footprints, not {}",
+                self.concavity_gate
+            )));
+        }
         if !(0.0..=1.0).contains(&self.min_free_ratio) {
             return Err(EvalError::InvalidArgument(format!(
                 "the carving's free share must be in [0, 1], not {}",
@@ -123,6 +150,9 @@ pub struct DepthMap<'a> {
     pub camera: &'a Camera,
     /// The depth values.
     pub depth: &'a [f32],
+    /// The masks' hull's own depth from the same camera (same layout, `<= 0` where a pixel's
+    /// ray misses it), which [`CarveSettings::concavity_gate`] compares the depth with.
+    pub hull_depth: Option<&'a [f32]>,
 }
 
 /// Per pixel of `dm`, the largest depth difference to its 4-neighbours in the image; NaN
@@ -157,6 +187,60 @@ fn depth_steps(dm: &DepthMap) -> Vec<f32> {
         .collect()
 }
 
+/// Per pixel of `dm`, whether its depth lies more than `gate` footprints behind the hull's
+/// depth on the same ray (where the view looks into a concavity the masks cannot see; the
+/// footprint stretched by the hull's depth step to its neighbours where the view sees it at a
+/// grazing angle, and no pass beside a pixel off the hull), and so
+/// do the `radius` pixels on both sides of it along one of the four lines through it (the
+/// row, the column, a diagonal): a slot one pixel wide passes along its length, an isolated
+/// pixel whose depth ran deep does not. All false without a hull depth.
+pub(crate) fn concavity_open(dm: &DepthMap, gate: f32, radius: usize) -> Vec<bool> {
+    let (w, h) = (dm.camera.width as usize, dm.camera.height as usize);
+    let Some(hull) = dm.hull_depth else {
+        return vec![false; w * h];
+    };
+    let fx = dm.camera.fx;
+    // The hull seen at a grazing angle: its depth steps from pixel to pixel, and a small
+    // error across the ray is a large one along it. The gap is measured against the
+    // footprint stretched by that step (`footprint / cos` of the angle, roughly).
+    let steps = depth_steps(&DepthMap {
+        camera: dm.camera,
+        depth: hull,
+        hull_depth: None,
+    });
+    let pass: Vec<bool> = (0..w * h)
+        .map(|pix| {
+            let (d, hd, step) = (dm.depth[pix], hull[pix], steps[pix]);
+            let footprint = d / fx;
+            d.is_finite()
+                && d > 0.0
+                && hd > 0.0
+                && step.is_finite()
+                && d - hd > gate * (footprint * footprint + step * step).sqrt()
+        })
+        .collect();
+    if radius == 0 {
+        return pass;
+    }
+    let r = radius as isize;
+    let at = |x: isize, y: isize| {
+        x >= 0
+            && y >= 0
+            && (x as usize) < w
+            && (y as usize) < h
+            && pass[y as usize * w + x as usize]
+    };
+    (0..w * h)
+        .map(|pix| {
+            let (x, y) = ((pix % w) as isize, (pix / w) as isize);
+            pass[pix]
+                && [(1, 0), (0, 1), (1, 1), (1, -1)].iter().any(|&(dx, dy)| {
+                    (1..=r).all(|k| at(x + k * dx, y + k * dy) && at(x - k * dx, y - k * dy))
+                })
+        })
+        .collect()
+}
+
 /// The depth at continuous pixel coordinates `uv`, interpolated bilinearly between the four
 /// pixel centres around it; `None` when one of them has no depth or lies outside the image.
 fn bilinear_depth(dm: &DepthMap, uv: glam::Vec2) -> Option<f32> {
@@ -182,6 +266,7 @@ fn bilinear_depth(dm: &DepthMap, uv: glam::Vec2) -> Option<f32> {
 fn carve_at(
     depths: &[DepthMap],
     steps: &[Vec<f32>],
+    open: &[Vec<bool>],
     p: Vec3,
     settings: &CarveSettings,
 ) -> Option<f32> {
@@ -220,6 +305,9 @@ fn carve_at(
         }
         if s <= margin {
             near += 1;
+            continue;
+        }
+        if settings.concavity_gate > 0.0 && !open[k_view][pix] {
             continue;
         }
         free += 1;
@@ -261,8 +349,27 @@ pub fn carve_grid(
                 dm.depth.len(),
             ));
         }
+        match dm.hull_depth {
+            Some(h) if h.len() != n => {
+                return Err(EvalError::size(&format!("hull depth map {k}"), n, h.len()));
+            }
+            None if settings.concavity_gate > 0.0 => {
+                return Err(EvalError::InvalidArgument(format!(
+                    "the carving's concavity gate needs the hull's depth, and depth map {k} has none"
+                )));
+            }
+            _ => {}
+        }
     }
     // Each view's depth steps, once (not per grid point).
+    let open: Vec<Vec<bool>> = if settings.concavity_gate > 0.0 {
+        depths
+            .iter()
+            .map(|dm| concavity_open(dm, settings.concavity_gate, settings.gate_radius))
+            .collect()
+    } else {
+        Vec::new()
+    };
     let steps: Vec<Vec<f32>> = if settings.slope_margin > 0.0 {
         depths.iter().map(depth_steps).collect()
     } else {
@@ -275,7 +382,7 @@ pub fn carve_grid(
         if hull >= 0.0 {
             return hull;
         }
-        match carve_at(depths, &steps, p, settings) {
+        match carve_at(depths, &steps, &open, p, settings) {
             Some(c) => hull.max(c),
             None => hull,
         }

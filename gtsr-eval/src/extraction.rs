@@ -17,12 +17,17 @@ use serde::{Deserialize, Serialize};
 
 use crate::carve::{CarveSettings, DepthMap, MAX_CARVE_VIEWS, carve_mesh};
 use crate::consistency::{ConsistencySettings, DepthView, filter_consistent};
+use crate::depth::MeshRaycaster;
 use crate::error::{EvalError, Result};
+use crate::mesh::face_centroid;
 use crate::mesh::largest_component;
+use crate::metrics::SignedDistance;
 use crate::tsdf::{
     TsdfVolume, default_truncation, default_voxel_for_radius, drop_depth_edges, faces_ray,
     median_pixel_footprint, snap_to_hull,
 };
+use crate::visible::{faces_kept, faces_observed};
+use rayon::prelude::*;
 
 /// How the mesh is extracted.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
@@ -64,6 +69,18 @@ fn parse_unit(s: &str) -> std::result::Result<f32, String> {
     }
 }
 
+/// The carving's default agreeing views: one. A concavity the masks miss is often seen by
+/// one or two training views only; the concavity gate keeps a single view from eroding the
+/// rest.
+pub const DEFAULT_CARVE_VIEWS: u64 = 1;
+/// The carving's default margin in footprints: the carved surface lies this far in front of
+/// the rendered depth, which runs about a footprint behind the surface.
+pub const DEFAULT_CARVE_MARGIN: f32 = 1.0;
+/// The default concavity gate in footprints ([`CarveSettings::concavity_gate`]).
+pub const DEFAULT_CONCAVITY_GATE: f32 = 3.0;
+/// The default tolerance in footprints of [`MeshConfig::cull_unobserved`].
+pub const DEFAULT_CULL_UNOBSERVED: f32 = 3.0;
+
 /// Every mesh extraction setting. Scenes without masks always use [`Fusion::Tsdf`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
 #[serde(default, deny_unknown_fields)]
@@ -73,12 +90,12 @@ pub struct MeshConfig {
     #[arg(long = "fusion", id = "mesh.fusion", value_name = "METHOD", value_enum, default_value_t = Fusion::Carve)]
     pub fusion: Fusion,
     /// Carving: the depth views that must each put a point in front of their rendered surface.
-    #[arg(long = "carve-views", id = "mesh.carve_views", value_name = "N", default_value_t = 3,
+    #[arg(long = "carve-views", id = "mesh.carve_views", value_name = "N", default_value_t = DEFAULT_CARVE_VIEWS,
           value_parser = clap::value_parser!(u64).range(1..=MAX_CARVE_VIEWS as u64))]
     pub carve_views: u64,
     /// Carving: how far in front, in that view's training-pixel footprints.
     #[arg(long = "carve-margin", id = "mesh.carve_margin", value_name = "FOOTPRINTS",
-          default_value_t = 3.0, value_parser = parse_non_negative)]
+          default_value_t = DEFAULT_CARVE_MARGIN, value_parser = parse_non_negative)]
     pub carve_margin: f32,
     /// Carving: the least share of the views that put a point in front of their surface among
     /// those that put it in front or near it (the rest see it hidden and do not count).
@@ -95,6 +112,22 @@ pub struct MeshConfig {
     #[serde(default)]
     #[arg(skip)]
     pub carve_bilinear: bool,
+    /// Carving: a view votes a point free only where its depth lies more than this many
+    /// footprints behind the masks' own depth at that pixel, i.e. where it looks into a
+    /// concavity the masks cannot see (0: off; [`CarveSettings::concavity_gate`]).
+    #[arg(long = "carve-concavity-gate", id = "mesh.carve_concavity_gate", value_name = "FOOTPRINTS",
+          default_value_t = DEFAULT_CONCAVITY_GATE, value_parser = parse_non_negative)]
+    pub carve_concavity_gate: f32,
+    /// Carving: the concavity gate's window radius in pixels ([`CarveSettings::gate_radius`]).
+    #[arg(skip)]
+    pub carve_gate_radius: usize,
+    /// Carving: leave out the carved walls (faces off the masks' mesh) that no depth map
+    /// observes within this many footprints ([`crate::visible::faces_observed`]): where a view
+    /// carved through an opening into a cavity it sees only part of. The mesh is then open
+    /// there (0: keep the closed mesh).
+    #[arg(long = "cull-unobserved", id = "mesh.cull_unobserved", value_name = "FOOTPRINTS",
+          default_value_t = DEFAULT_CULL_UNOBSERVED, value_parser = parse_non_negative)]
+    pub cull_unobserved: f32,
     /// Carving: the grid spacing (scene units). Default: 0.75 of the masks' pixel footprint
     /// at the object, at the dataset's resolution.
     #[arg(long = "carve-voxel", id = "mesh.carve_voxel", value_name = "SIZE", value_parser = parse_positive)]
@@ -147,11 +180,14 @@ impl Default for MeshConfig {
     fn default() -> Self {
         MeshConfig {
             fusion: Fusion::Carve,
-            carve_views: CarveSettings::default().min_views as u64,
-            carve_margin: CarveSettings::default().margin_footprints,
+            carve_views: DEFAULT_CARVE_VIEWS,
+            carve_margin: DEFAULT_CARVE_MARGIN,
             carve_free_ratio: CarveSettings::default().min_free_ratio,
             carve_slope: CarveSettings::default().slope_margin,
             carve_bilinear: CarveSettings::default().bilinear,
+            carve_concavity_gate: DEFAULT_CONCAVITY_GATE,
+            carve_gate_radius: CarveSettings::default().gate_radius,
+            cull_unobserved: DEFAULT_CULL_UNOBSERVED,
             carve_voxel: None,
             voxel: None,
             truncation: None,
@@ -176,6 +212,8 @@ impl MeshConfig {
             min_free_ratio: self.carve_free_ratio,
             slope_margin: self.carve_slope,
             bilinear: self.carve_bilinear,
+            concavity_gate: self.carve_concavity_gate,
+            gate_radius: self.carve_gate_radius,
         }
     }
 
@@ -224,6 +262,12 @@ impl MeshConfig {
         }
         if self.mesh_resolution == Some(0) {
             return bad("mesh.mesh_resolution must be at least 1".into());
+        }
+        if !(self.cull_unobserved.is_finite() && self.cull_unobserved >= 0.0) {
+            return bad(format!(
+                "mesh.cull_unobserved must be a finite number of footprints >= 0, got {}",
+                self.cull_unobserved
+            ));
         }
         if let Some(t) = self.depth_crossing
             && !(t > 0.0 && t < 1.0)
@@ -394,7 +438,9 @@ pub fn prepare_depth(
 /// The mesh of `inputs` under `config`, and the lines worth reporting about how it was made.
 ///
 /// With [`Fusion::Carve`] and the masks: the masks at the dataset's resolution carved by the
-/// depth maps where [`MeshConfig::carve`] agrees ([`carve_mesh`]). Otherwise a TSDF of the
+/// depth maps where [`MeshConfig::carve`] agrees ([`carve_mesh`]; the concavity gate compares
+/// each depth map with the masks' mesh ray cast from the same camera), then, with
+/// [`MeshConfig::cull_unobserved`], without the carved walls no depth map observes. Otherwise a TSDF of the
 /// depth maps on the box (voxel: its radius / 256 unless set), with the masks' hull kept in
 /// the volume when every view has a mask and [`MeshConfig::silhouette_carving`] is on; then
 /// marching cubes and the largest connected component.
@@ -410,17 +456,70 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
             return Ok((masks.mesh.clone(), notes));
         }
         let maps = consistent_maps(config, inputs, &mut notes)?;
+        // The hull's own depth, for the concavity gate: the masks' mesh ray cast per view.
+        let hull_maps: Vec<Vec<f32>> = if config.carve_concavity_gate > 0.0 {
+            let caster = MeshRaycaster::new(&masks.mesh, "the masks' mesh")?;
+            inputs
+                .views
+                .iter()
+                .map(|v| caster.render(v.camera).depth)
+                .collect()
+        } else {
+            Vec::new()
+        };
         let depths: Vec<DepthMap> = inputs
             .views
             .iter()
             .zip(&maps)
-            .map(|(v, depth)| DepthMap {
+            .enumerate()
+            .map(|(k, (v, depth))| DepthMap {
                 camera: v.camera,
                 depth,
+                hull_depth: hull_maps.get(k).map(Vec::as_slice),
             })
             .collect();
         let voxel = config.carve_voxel.unwrap_or(masks.voxel);
-        let mesh = carve_mesh(&masks.borrowed(), &depths, lo, hi, voxel, &config.carve())?;
+        let carve = config.carve();
+        if carve.concavity_gate > 0.0 {
+            let (open, seen): (usize, usize) = depths
+                .iter()
+                .map(|dm| {
+                    let open =
+                        crate::carve::concavity_open(dm, carve.concavity_gate, carve.gate_radius);
+                    (
+                        open.iter().filter(|o| **o).count(),
+                        dm.depth.iter().filter(|d| **d > 0.0).count(),
+                    )
+                })
+                .fold((0, 0), |(a, b), (c, d)| (a + c, b + d));
+            notes.push(format!(
+                "concavity gate: {open} of {seen} depth samples lie more than {} footprints \
+                 behind the masks' hull",
+                carve.concavity_gate
+            ));
+        }
+        let mut mesh = carve_mesh(&masks.borrowed(), &depths, lo, hi, voxel, &carve)?;
+        if config.cull_unobserved > 0.0 {
+            // Only the carving's own walls (off the masks' mesh) must be seen by a depth map.
+            let off_hull = SignedDistance::new(&masks.mesh, "the masks' mesh")?;
+            let seen = faces_observed(&mesh, &depths, config.cull_unobserved)?;
+            let keep: Vec<bool> = mesh
+                .triangles
+                .par_iter()
+                .zip(&seen)
+                .map(|(t, seen)| {
+                    *seen || off_hull.query(face_centroid(&mesh, *t)).0.abs() <= masks.voxel
+                })
+                .collect();
+            let before = mesh.triangles.len();
+            mesh = faces_kept(&mesh, &keep, "the culling left no face")?;
+            notes.push(format!(
+                "culled {} of {before} faces: carved walls no depth map observes within {} \
+                 footprints",
+                before - mesh.triangles.len(),
+                config.cull_unobserved
+            ));
+        }
         return Ok((mesh, notes));
     }
     let radius = 0.5 * (hi - lo).max_element();

@@ -29,6 +29,7 @@ use glam::Vec3;
 use gtsr_data::ply::TriMesh;
 use rayon::prelude::*;
 
+use crate::carve::DepthMap;
 use crate::depth::MeshRaycaster;
 use crate::error::{EvalError, Result};
 use crate::mesh::{face_centroid, face_normal_scaled};
@@ -223,7 +224,7 @@ pub fn winding_numbers(mesh: &TriMesh, points: &[Vec3]) -> Result<Vec<i32>> {
 
 /// The faces of `mesh` that `keep` flags (one flag a face), on its vertices; `none` is the
 /// error when no face is kept.
-fn faces_kept(mesh: &TriMesh, keep: &[bool], none: &str) -> Result<TriMesh> {
+pub(crate) fn faces_kept(mesh: &TriMesh, keep: &[bool], none: &str) -> Result<TriMesh> {
     let triangles: Vec<[u32; 3]> = mesh
         .triangles
         .iter()
@@ -414,38 +415,82 @@ pub fn pixel_visible_faces(
     }
     let caster = MeshRaycaster::new(mesh, "the mesh of the pixel visibility")?;
     let maps: Vec<_> = cameras.iter().map(|c| caster.render(c)).collect();
-    let eyes: Vec<Vec3> = cameras.iter().map(|c| c.centre()).collect();
+    let depths: Vec<DepthMap> = cameras
+        .iter()
+        .zip(&maps)
+        .map(|(camera, map)| DepthMap {
+            camera,
+            depth: &map.depth,
+            hull_depth: None,
+        })
+        .collect();
+    observed_faces(mesh, &depths, tolerance)
+}
+
+/// The faces of `mesh` that some depth map observes ([`faces_observed`]): a closed mesh
+/// carved through an opening narrower than the views can look through has walls inside the
+/// cavity behind it that no view sees as a surface, and this leaves them out (the mesh is then
+/// open). Errors as [`faces_observed`] does, and when no face is observed.
+pub fn observed_faces(mesh: &TriMesh, depths: &[DepthMap], tolerance: f32) -> Result<TriMesh> {
+    let shown = faces_observed(mesh, depths, tolerance)?;
+    faces_kept(
+        mesh,
+        &shown,
+        "no face of the mesh is observed by any depth map",
+    )
+}
+
+/// Per face of `mesh`, whether some depth map observes it: its centroid, projected into a
+/// view that it faces, lies within `tolerance` pixel footprints (at its depth) of that view's
+/// depth at the nearest pixel. Errors on an invalid mesh, no depth map, a bad tolerance or a
+/// depth map of the wrong size.
+pub fn faces_observed(mesh: &TriMesh, depths: &[DepthMap], tolerance: f32) -> Result<Vec<bool>> {
+    if depths.is_empty() {
+        return Err(EvalError::InvalidArgument(
+            "observing faces needs at least one depth map".into(),
+        ));
+    }
+    if !(tolerance.is_finite() && tolerance > 0.0) {
+        return Err(EvalError::InvalidArgument(format!(
+            "the observation tolerance must be finite and > 0 footprints, not {tolerance}"
+        )));
+    }
+    for (k, dm) in depths.iter().enumerate() {
+        let n = dm.camera.width as usize * dm.camera.height as usize;
+        if dm.depth.len() != n {
+            return Err(EvalError::size(
+                &format!("depth map {k}"),
+                n,
+                dm.depth.len(),
+            ));
+        }
+    }
+    crate::mesh::validate(mesh, "the mesh to observe")?;
+    let eyes: Vec<Vec3> = depths.iter().map(|dm| dm.camera.centre()).collect();
     let shown: Vec<bool> = mesh
         .triangles
         .par_iter()
         .map(|t| {
             let n = face_normal_scaled(mesh, *t);
             let c = face_centroid(mesh, *t);
-            cameras
-                .iter()
-                .zip(&maps)
-                .zip(&eyes)
-                .any(|((cam, map), eye)| {
-                    if n.dot(*eye - c) <= 0.0 {
-                        return false; // faces away
-                    }
-                    let Some((uv, z)) = cam.project(c) else {
-                        return false;
-                    };
-                    let (i, j) = (uv.x.floor(), uv.y.floor());
-                    if i < 0.0 || j < 0.0 || i >= map.width as f32 || j >= map.height as f32 {
-                        return false;
-                    }
-                    let d = map.depth[j as usize * map.width + i as usize];
-                    d > 0.0 && (d - z).abs() <= tolerance * z / cam.fx
-                })
+            depths.iter().zip(&eyes).any(|(dm, eye)| {
+                if n.dot(*eye - c) <= 0.0 {
+                    return false; // faces away
+                }
+                let cam = dm.camera;
+                let Some((uv, z)) = cam.project(c) else {
+                    return false;
+                };
+                let (i, j) = (uv.x.floor(), uv.y.floor());
+                if i < 0.0 || j < 0.0 || i >= cam.width as f32 || j >= cam.height as f32 {
+                    return false;
+                }
+                let d = dm.depth[j as usize * cam.width as usize + i as usize];
+                d > 0.0 && (d - z).abs() <= tolerance * z / cam.fx
+            })
         })
         .collect();
-    faces_kept(
-        mesh,
-        &shown,
-        "no face of the mesh is shown by any pixel of the cameras",
-    )
+    Ok(shown)
 }
 
 #[cfg(test)]
@@ -634,5 +679,51 @@ mod tests {
         );
         assert!(pixel_visible_faces(&mesh, &[], 1.5).is_err());
         assert!(pixel_visible_faces(&mesh, &cameras, 0.0).is_err());
+    }
+
+    #[test]
+    fn observed_faces_keep_what_the_depth_sees() {
+        // A sphere hidden inside another: the depth maps of the pair see only the outer one.
+        let outer = icosphere(Vec3::ZERO, 1.0, 3);
+        let n_outer = outer.triangles.len();
+        let both = merged(outer, icosphere(Vec3::new(0.1, 0.0, 0.0), 0.5, 3));
+        let cams: Vec<gtsr_data::Camera> = (0..12)
+            .map(|k| {
+                let a = k as f32 * std::f32::consts::TAU / 12.0;
+                let eye = Vec3::new(4.0 * a.cos(), 1.5 * (k % 3) as f32 - 1.5, 4.0 * a.sin());
+                gtsr_data::Camera::look_at(eye, Vec3::ZERO, Vec3::Y, 0.7, 64, 64)
+            })
+            .collect();
+        let caster = MeshRaycaster::new(&both, "both").unwrap();
+        let maps: Vec<_> = cams.iter().map(|c| caster.render(c)).collect();
+        let depths: Vec<DepthMap> = cams
+            .iter()
+            .zip(&maps)
+            .map(|(camera, m)| DepthMap {
+                camera,
+                depth: &m.depth,
+                hull_depth: None,
+            })
+            .collect();
+        let kept = observed_faces(&both, &depths, 1.0).unwrap();
+        let inner_kept = kept
+            .triangles
+            .iter()
+            .filter(|t| kept.positions[t[0] as usize].length() < 0.9)
+            .count();
+        assert_eq!(inner_kept, 0, "inner faces kept");
+        assert!(
+            kept.triangles.len() * 10 > n_outer * 9,
+            "{} of {n_outer} outer faces kept",
+            kept.triangles.len()
+        );
+        assert!(observed_faces(&both, &[], 1.0).is_err());
+        assert!(observed_faces(&both, &depths, 0.0).is_err());
+        let short = [DepthMap {
+            camera: &cams[0],
+            depth: &maps[0].depth[1..],
+            hull_depth: None,
+        }];
+        assert!(observed_faces(&both, &short, 1.0).is_err());
     }
 }

@@ -8,7 +8,8 @@ use glam::Vec3;
 use gtsr_data::Camera;
 use gtsr_eval::hull::{masks_grid, silhouette_distance};
 use gtsr_eval::{
-    CarveSettings, DepthMap, carve_grid, carve_mesh, masks_mesh, score_against_ground_truth,
+    CarveSettings, DepthMap, MeshRaycaster, carve_grid, carve_mesh, masks_mesh,
+    score_against_ground_truth,
 };
 
 const HALF: f32 = 0.5;
@@ -86,7 +87,11 @@ fn depth_maps(s: &Scene) -> Vec<DepthMap<'_>> {
     s.cams
         .iter()
         .zip(&s.depths)
-        .map(|(camera, depth)| DepthMap { camera, depth })
+        .map(|(camera, depth)| DepthMap {
+            camera,
+            depth,
+            hull_depth: None,
+        })
         .collect()
 }
 
@@ -160,7 +165,11 @@ fn one_wrong_depth_map_does_not_dig_into_the_object() {
         .cams
         .iter()
         .zip(&depths)
-        .map(|(camera, depth)| DepthMap { camera, depth })
+        .map(|(camera, depth)| DepthMap {
+            camera,
+            depth,
+            hull_depth: None,
+        })
         .collect();
     let settings = CarveSettings::default();
     let carved = carve_grid(&masks, &maps, LO, HI, VOXEL, &settings).unwrap();
@@ -205,6 +214,8 @@ fn the_carved_mesh_beats_the_masks_on_the_pit() {
             min_free_ratio: 0.0,
             slope_margin: 0.0,
             bilinear: false,
+            concavity_gate: 0.0,
+            gate_radius: 0,
         },
     )
     .unwrap();
@@ -271,6 +282,15 @@ fn carving_checks_its_inputs() {
             slope_margin: -0.5,
             ..CarveSettings::default()
         },
+        CarveSettings {
+            concavity_gate: f32::INFINITY,
+            ..CarveSettings::default()
+        },
+        // A gate without the hull's depth maps.
+        CarveSettings {
+            concavity_gate: 3.0,
+            ..CarveSettings::default()
+        },
     ] {
         assert!(
             carve_grid(&masks, &maps, LO, HI, VOXEL, &bad).is_err(),
@@ -281,6 +301,7 @@ fn carving_checks_its_inputs() {
     let short = [DepthMap {
         camera: &s.cams[0],
         depth: &s.depths[0][1..],
+        hull_depth: None,
     }];
     assert!(carve_grid(&masks, &short, LO, HI, VOXEL, &ok).is_err());
     assert!(carve_grid(&[], &maps, LO, HI, VOXEL, &ok).is_err());
@@ -313,19 +334,59 @@ fn the_extraction_recipe_carves_with_masks_and_fuses_a_tsdf_without() {
         bounds: (LO, HI),
         coarse: false,
     };
-    // The default: the masks carved where the views agree, exactly `carve_mesh` on the masks'
-    // own grid.
-    let (carved, _) = extract_mesh(&MeshConfig::default(), &inputs).unwrap();
+    // The default without its culling: the masks carved where a view looks into a concavity,
+    // exactly `carve_mesh` on the masks' own grid with the masks' mesh ray cast as the hull's
+    // depth.
+    let closed = MeshConfig {
+        cull_unobserved: 0.0,
+        ..MeshConfig::default()
+    };
+    let (carved, notes) = extract_mesh(&closed, &inputs).unwrap();
+    let caster = MeshRaycaster::new(&alone.mesh, "the masks' mesh").unwrap();
+    let hull_depths: Vec<Vec<f32>> = s.cams.iter().map(|c| caster.render(c).depth).collect();
+    let maps: Vec<DepthMap> = s
+        .cams
+        .iter()
+        .zip(&s.depths)
+        .zip(&hull_depths)
+        .map(|((camera, depth), hull)| DepthMap {
+            camera,
+            depth,
+            hull_depth: Some(hull),
+        })
+        .collect();
     let direct = carve_mesh(
         &alone.borrowed(),
-        &depth_maps(&s),
+        &maps,
         LO,
         HI,
         alone.voxel,
-        &CarveSettings::default(),
+        &closed.carve(),
     )
     .unwrap();
-    assert_eq!(carved, direct);
+    assert!(
+        carved == direct,
+        "{} against {} triangles",
+        carved.triangles.len(),
+        direct.triangles.len()
+    );
+    assert!(
+        notes.iter().any(|n| n.contains("concavity gate")),
+        "{notes:?}"
+    );
+    assert!(
+        at(
+            &carve_grid(&alone.borrowed(), &maps, LO, HI, VOXEL, &closed.carve()).unwrap(),
+            Vec3::new(0.0, 0.35, 0.0)
+        ) > 0.0,
+        "the default carves the pit"
+    );
+    // The default culls the carved walls no depth map observes: a subset of those faces.
+    let (culled, notes) = extract_mesh(&MeshConfig::default(), &inputs).unwrap();
+    assert!(notes.iter().any(|n| n.contains("culled")), "{notes:?}");
+    let faces: std::collections::HashSet<[u32; 3]> = carved.triangles.iter().copied().collect();
+    assert!(culled.positions == carved.positions);
+    assert!(culled.triangles.iter().all(|t| faces.contains(t)));
     // TSDF fusion of the same depth with the masks' hull (at a truncation short enough for
     // the pit), and of the masks alone: the depth reaches the pit, the masks alone fill it.
     let tsdf = MeshConfig {
@@ -405,6 +466,8 @@ fn the_slope_margin_keeps_single_views_from_eroding_the_edges() {
         min_free_ratio: 0.0,
         slope_margin,
         bilinear: false,
+        concavity_gate: 0.0,
+        gate_radius: 0,
     };
     // Points of the solid carved by exact depth maps (with no margin, only a depth read at
     // the wrong place along a grazing pixel can put them in front of the surface).
@@ -433,6 +496,8 @@ fn bilinear_depth_keeps_single_views_from_eroding_the_edges() {
         min_free_ratio: 0.0,
         slope_margin: 0.0,
         bilinear,
+        concavity_gate: 0.0,
+        gate_radius: 0,
     };
     let maps = depth_maps(&s);
     let dug = |settings: CarveSettings| {
@@ -451,4 +516,89 @@ fn bilinear_depth_keeps_single_views_from_eroding_the_edges() {
     assert!(b0 * 4 < n0, "bilinear {b0} against nearest {n0}");
     assert!(b1 * 4 < n1.max(1), "bilinear {b1} against nearest {n1}");
     assert!(pit0 > 0.0 && pit1 > 0.0, "the pit is still carved");
+}
+
+#[test]
+fn the_concavity_gate_carves_the_pit_and_leaves_the_faces_to_the_masks() {
+    let s = scene();
+    let masks = mask_views(&s);
+    let hull = masks_mesh(&masks, Some(VOXEL)).unwrap().expect("a hull");
+    let caster = MeshRaycaster::new(&hull, "hull").unwrap();
+    let hull_depths: Vec<Vec<f32>> = s.cams.iter().map(|c| caster.render(c).depth).collect();
+    // Rendered depth lies behind the surface: two footprints here.
+    let behind: Vec<Vec<f32>> = s
+        .cams
+        .iter()
+        .zip(&s.depths)
+        .map(|(c, d)| d.iter().map(|&z| z + 2.0 * z / c.fx).collect())
+        .collect();
+    let maps: Vec<DepthMap> = s
+        .cams
+        .iter()
+        .zip(&behind)
+        .zip(&hull_depths)
+        .map(|((camera, depth), hull)| DepthMap {
+            camera,
+            depth,
+            hull_depth: Some(hull),
+        })
+        .collect();
+    let single = |concavity_gate| CarveSettings {
+        min_views: 1,
+        margin_footprints: 0.0,
+        min_free_ratio: 0.0,
+        concavity_gate,
+        ..CarveSettings::default()
+    };
+    // Solid points carved away from the pit (more than 0.1 from its walls and floor).
+    let dug_away = |g: &gtsr_eval::Grid| {
+        let [nx, ny, nz] = g.dims;
+        let mut n = 0;
+        for k in 0..nz {
+            for j in 0..ny {
+                for i in 0..nx {
+                    let p = g.point(i, j, k);
+                    let near_pit =
+                        (p.x * p.x + p.z * p.z).sqrt() < PIT_RADIUS + 0.1 && p.y > PIT_FLOOR - 0.1;
+                    if !near_pit && sdf(p) < 0.0 && g.values[g.index(i, j, k)] > 0.0 {
+                        n += 1;
+                    }
+                }
+            }
+        }
+        n
+    };
+    let open = carve_grid(&masks, &maps, LO, HI, VOXEL, &single(0.0)).unwrap();
+    let gated = carve_grid(&masks, &maps, LO, HI, VOXEL, &single(3.0)).unwrap();
+    let (d_open, d_gated) = (dug_away(&open), dug_away(&gated));
+    eprintln!(
+        "solid points dug away from the pit: {d_open} open, {d_gated} gated; anywhere {} / {}",
+        carved_below(&open, 0.0),
+        carved_below(&gated, 0.0)
+    );
+    assert!(d_open > 100, "depth behind the surface erodes the faces");
+    assert_eq!(d_gated, 0, "the gated rule leaves them to the masks");
+    for p in [Vec3::new(0.0, 0.35, 0.0), Vec3::new(0.1, 0.2, 0.05)] {
+        assert!(at(&gated, p) > 0.0, "the pit is carved at {p}");
+    }
+    // Depth that agrees with the hull carves nothing.
+    let flat: Vec<DepthMap> = s
+        .cams
+        .iter()
+        .zip(&hull_depths)
+        .map(|(camera, hull)| DepthMap {
+            camera,
+            depth: hull,
+            hull_depth: Some(hull),
+        })
+        .collect();
+    let none = carve_grid(&masks, &flat, LO, HI, VOXEL, &single(3.0)).unwrap();
+    let by_masks = masks_grid(&masks, LO, HI, VOXEL).unwrap();
+    let changed = none
+        .values
+        .iter()
+        .zip(&by_masks.values)
+        .filter(|(a, b)| (**a > 0.0) != (**b > 0.0))
+        .count();
+    assert_eq!(changed, 0, "the hull's own depth changed {changed} points");
 }

@@ -68,10 +68,10 @@ pub struct FusionCeilingArgs {
     #[arg(long)]
     pub carve: bool,
     /// Carving: agreeing views (gtsr-train's `--carve-views`).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = gtsr_eval::extraction::DEFAULT_CARVE_VIEWS as usize)]
     pub carve_views: usize,
     /// Carving: margin in footprints (gtsr-train's `--carve-margin`).
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = gtsr_eval::extraction::DEFAULT_CARVE_MARGIN)]
     pub carve_margin: f32,
     /// Carving: least free share (gtsr-train's `--carve-free-ratio`).
     #[arg(long, default_value_t = 0.5)]
@@ -84,6 +84,17 @@ pub struct FusionCeilingArgs {
     /// `carve_bilinear`).
     #[arg(long)]
     pub carve_bilinear: bool,
+    /// Carving: a view votes free only where its depth lies this many footprints behind the
+    /// masks' own depth at that pixel (the mesh setting `carve_concavity_gate`; 0: off).
+    #[arg(long, default_value_t = gtsr_eval::extraction::DEFAULT_CONCAVITY_GATE)]
+    pub carve_concavity_gate: f32,
+    /// Carving: the concavity gate's window radius in pixels (`carve_gate_radius`).
+    #[arg(long, default_value_t = 0)]
+    pub carve_gate_radius: usize,
+    /// Carving: leave out the carved walls no depth map observes within this many
+    /// footprints (the mesh setting `cull_unobserved`; 0: off).
+    #[arg(long, default_value_t = gtsr_eval::extraction::DEFAULT_CULL_UNOBSERVED)]
+    pub cull_unobserved: f32,
     /// Leave out the TSDF fusions (with `--carve`: only the carving rows).
     #[arg(long)]
     pub no_tsdf: bool,
@@ -337,8 +348,11 @@ fn carve_rows(
         let (seen, whole) = score_against_ground_truth(mesh, gt, eyes, Some(&hull))?;
         let blind = seen.hull_blind.map(|b| b.blind);
         println!(
-            "  {label}: chamfer x1e3 {:.2} (whole GT {:.2}), hull-blind {:.2}, {secs:.0} s",
+            "  {label}: chamfer x1e3 {:.2} (accuracy {:.2}, completeness {:.2}; whole GT {:.2}), \
+             hull-blind {:.2}, {secs:.0} s",
             1e3 * seen.chamfer,
+            1e3 * seen.accuracy,
+            1e3 * seen.completeness,
             1e3 * whole.chamfer,
             1e3 * blind.unwrap_or(f64::NAN)
         );
@@ -393,6 +407,9 @@ fn carve_rows(
         carve_free_ratio: args.carve_free_ratio,
         carve_slope: args.carve_slope,
         carve_bilinear: args.carve_bilinear,
+        carve_concavity_gate: args.carve_concavity_gate,
+        carve_gate_radius: args.carve_gate_radius,
+        cull_unobserved: args.cull_unobserved,
         ..MeshConfig::default()
     };
     for bias in std::iter::once(0.0).chain(args.biases.iter().copied()) {
