@@ -1,5 +1,6 @@
 //! Mesh extraction for masked scenes: the masks bound the object, the rendered depth carves
-//! inside that bound where enough views agree.
+//! inside that bound where enough views agree, or (with the concavity gate) where a view looks
+//! into a concavity the masks cannot see.
 //!
 //! The field handed to marching cubes, per grid point `p` (world units, positive outside):
 //!
@@ -91,6 +92,9 @@ pub struct CarveSettings {
     pub gate_radius: usize,
 }
 
+/// The rule that needs no hull depth: three agreeing views, three footprints, no gate.
+/// gtsr-train's default extraction (`MeshConfig::default().carve()`) is the gated single-view
+/// rule, which [`crate::extract_mesh`] feeds with the masks' own depth.
 impl Default for CarveSettings {
     fn default() -> Self {
         CarveSettings {
