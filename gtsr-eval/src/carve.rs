@@ -198,7 +198,7 @@ fn depth_steps(dm: &DepthMap) -> Vec<f32> {
 /// do the `radius` pixels on both sides of it along one of the four lines through it (the
 /// row, the column, a diagonal): a slot one pixel wide passes along its length, an isolated
 /// pixel whose depth ran deep does not. All false without a hull depth.
-pub(crate) fn concavity_open(dm: &DepthMap, gate: f32, radius: usize) -> Vec<bool> {
+fn concavity_open(dm: &DepthMap, gate: f32, radius: usize) -> Vec<bool> {
     let (w, h) = (dm.camera.width as usize, dm.camera.height as usize);
     let Some(hull) = dm.hull_depth else {
         return vec![false; w * h];
@@ -342,6 +342,27 @@ pub fn carve_grid(
     voxel: f32,
     settings: &CarveSettings,
 ) -> Result<Grid> {
+    Ok(carve_field(masks, depths, min, max, voxel, settings)?.0)
+}
+
+/// How many depth samples the concavity gate let vote, of how many ([`carve_field`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct GateCount {
+    /// Samples that passed the gate.
+    pub open: usize,
+    /// Samples with a depth.
+    pub samples: usize,
+}
+
+/// [`carve_grid`], and with the concavity gate on, how many samples passed it.
+pub(crate) fn carve_field(
+    masks: &[(Camera, &[f32])],
+    depths: &[DepthMap],
+    min: Vec3,
+    max: Vec3,
+    voxel: f32,
+    settings: &CarveSettings,
+) -> Result<(Grid, Option<GateCount>)> {
     settings.validate()?;
     let dims = grid_dims(masks, min, max, voxel)?;
     for (k, dm) in depths.iter().enumerate() {
@@ -365,7 +386,7 @@ pub fn carve_grid(
             _ => {}
         }
     }
-    // Each view's depth steps, once (not per grid point).
+    // Each view's gate and depth steps, once (not per grid point).
     let open: Vec<Vec<bool>> = if settings.concavity_gate > 0.0 {
         depths
             .iter()
@@ -374,6 +395,14 @@ pub fn carve_grid(
     } else {
         Vec::new()
     };
+    let gate_count = (settings.concavity_gate > 0.0).then(|| GateCount {
+        open: open.iter().flatten().filter(|o| **o).count(),
+        samples: depths
+            .iter()
+            .flat_map(|dm| dm.depth)
+            .filter(|d| **d > 0.0)
+            .count(),
+    });
     let steps: Vec<Vec<f32>> = if settings.slope_margin > 0.0 {
         depths.iter().map(depth_steps).collect()
     } else {
@@ -392,7 +421,7 @@ pub fn carve_grid(
         }
     });
     close_box(&mut grid, voxel);
-    Ok(grid)
+    Ok((grid, gate_count))
 }
 
 /// [`carve_grid`] through marching cubes, the largest component: closed and outward oriented.
@@ -404,6 +433,18 @@ pub fn carve_mesh(
     voxel: f32,
     settings: &CarveSettings,
 ) -> Result<TriMesh> {
-    let grid = carve_grid(masks, depths, min, max, voxel, settings)?;
-    Ok(largest_component(&marching_cubes(&grid, 0.0)))
+    Ok(carve_mesh_counted(masks, depths, min, max, voxel, settings)?.0)
+}
+
+/// [`carve_mesh`], and what [`carve_field`] counted of the gate.
+pub(crate) fn carve_mesh_counted(
+    masks: &[(Camera, &[f32])],
+    depths: &[DepthMap],
+    min: Vec3,
+    max: Vec3,
+    voxel: f32,
+    settings: &CarveSettings,
+) -> Result<(TriMesh, Option<GateCount>)> {
+    let (grid, count) = carve_field(masks, depths, min, max, voxel, settings)?;
+    Ok((largest_component(&marching_cubes(&grid, 0.0)), count))
 }

@@ -15,7 +15,7 @@ use gtsr_data::Camera;
 use gtsr_data::ply::TriMesh;
 use serde::{Deserialize, Serialize};
 
-use crate::carve::{CarveSettings, DepthMap, MAX_CARVE_VIEWS, carve_mesh};
+use crate::carve::{CarveSettings, DepthMap, MAX_CARVE_VIEWS, carve_mesh_counted};
 use crate::consistency::{ConsistencySettings, DepthView, filter_consistent};
 use crate::depth::MeshRaycaster;
 use crate::error::{EvalError, Result};
@@ -26,7 +26,7 @@ use crate::tsdf::{
     TsdfVolume, default_truncation, default_voxel_for_radius, drop_depth_edges, faces_ray,
     median_pixel_footprint, snap_to_hull,
 };
-use crate::visible::{faces_kept, faces_observed};
+use crate::visible::{faces_kept, faces_observed_among};
 use rayon::prelude::*;
 
 /// How the mesh is extracted.
@@ -438,12 +438,12 @@ pub fn prepare_depth(
 /// The mesh of `inputs` under `config`, and the lines worth reporting about how it was made.
 ///
 /// With [`Fusion::Carve`] and the masks: the masks at the dataset's resolution carved by the
-/// depth maps where [`MeshConfig::carve`] agrees ([`carve_mesh`]; the concavity gate compares
-/// each depth map with the masks' mesh ray cast from the same camera), then, with
-/// [`MeshConfig::cull_unobserved`], without the carved walls no depth map observes. Otherwise a TSDF of the
-/// depth maps on the box (voxel: its radius / 256 unless set), with the masks' hull kept in
-/// the volume when every view has a mask and [`MeshConfig::silhouette_carving`] is on; then
-/// marching cubes and the largest connected component.
+/// depth maps where [`MeshConfig::carve`] agrees ([`crate::carve_mesh`]; the concavity gate
+/// compares each depth map with the masks' mesh ray cast from the same camera), then, with
+/// [`MeshConfig::cull_unobserved`], without the carved walls no depth map observes. Otherwise
+/// a TSDF of the depth maps on the box (voxel: its radius / 256 unless set), with the masks'
+/// hull kept in the volume when every view has a mask and [`MeshConfig::silhouette_carving`]
+/// is on; then marching cubes and the largest connected component.
 pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMesh, Vec<String>)> {
     config.validate()?;
     let mut notes = Vec::new();
@@ -480,37 +480,25 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
             .collect();
         let voxel = config.carve_voxel.unwrap_or(masks.voxel);
         let carve = config.carve();
-        if carve.concavity_gate > 0.0 {
-            let (open, seen): (usize, usize) = depths
-                .iter()
-                .map(|dm| {
-                    let open =
-                        crate::carve::concavity_open(dm, carve.concavity_gate, carve.gate_radius);
-                    (
-                        open.iter().filter(|o| **o).count(),
-                        dm.depth.iter().filter(|d| **d > 0.0).count(),
-                    )
-                })
-                .fold((0, 0), |(a, b), (c, d)| (a + c, b + d));
+        let (mut mesh, gate) =
+            carve_mesh_counted(&masks.borrowed(), &depths, lo, hi, voxel, &carve)?;
+        if let Some(g) = gate {
             notes.push(format!(
-                "concavity gate: {open} of {seen} depth samples lie more than {} footprints \
-                 behind the masks' hull",
-                carve.concavity_gate
+                "concavity gate: {} of {} depth samples lie more than {} footprints behind the \
+                 masks' hull",
+                g.open, g.samples, carve.concavity_gate
             ));
         }
-        let mut mesh = carve_mesh(&masks.borrowed(), &depths, lo, hi, voxel, &carve)?;
         if config.cull_unobserved > 0.0 {
             // Only the carving's own walls (off the masks' mesh) must be seen by a depth map.
-            let off_hull = SignedDistance::new(&masks.mesh, "the masks' mesh")?;
-            let seen = faces_observed(&mesh, &depths, config.cull_unobserved)?;
-            let keep: Vec<bool> = mesh
+            let hull = SignedDistance::new(&masks.mesh, "the masks' mesh")?;
+            let walls: Vec<bool> = mesh
                 .triangles
                 .par_iter()
-                .zip(&seen)
-                .map(|(t, seen)| {
-                    *seen || off_hull.query(face_centroid(&mesh, *t)).0.abs() <= masks.voxel
-                })
+                .map(|t| hull.query(face_centroid(&mesh, *t)).0.abs() > masks.voxel)
                 .collect();
+            let seen = faces_observed_among(&mesh, &depths, config.cull_unobserved, &walls)?;
+            let keep: Vec<bool> = walls.iter().zip(&seen).map(|(w, s)| !w || *s).collect();
             let before = mesh.triangles.len();
             mesh = faces_kept(&mesh, &keep, "the culling left no face")?;
             notes.push(format!(

@@ -408,11 +408,7 @@ pub fn pixel_visible_faces(
             "pixel visibility needs at least one camera".into(),
         ));
     }
-    if !(tolerance.is_finite() && tolerance > 0.0) {
-        return Err(EvalError::InvalidArgument(format!(
-            "the pixel-visibility tolerance must be finite and > 0 footprints, not {tolerance}"
-        )));
-    }
+    check_tolerance(tolerance)?;
     let caster = MeshRaycaster::new(mesh, "the mesh of the pixel visibility")?;
     let maps: Vec<_> = cameras.iter().map(|c| caster.render(c)).collect();
     let depths: Vec<DepthMap> = cameras
@@ -445,16 +441,35 @@ pub fn observed_faces(mesh: &TriMesh, depths: &[DepthMap], tolerance: f32) -> Re
 /// depth at the nearest pixel. Errors on an invalid mesh, no depth map, a bad tolerance or a
 /// depth map of the wrong size.
 pub fn faces_observed(mesh: &TriMesh, depths: &[DepthMap], tolerance: f32) -> Result<Vec<bool>> {
+    faces_observed_among(mesh, depths, tolerance, &vec![true; mesh.triangles.len()])
+}
+
+/// The observation tolerance must be a finite, positive number of footprints.
+fn check_tolerance(tolerance: f32) -> Result<()> {
+    if tolerance.is_finite() && tolerance > 0.0 {
+        Ok(())
+    } else {
+        Err(EvalError::InvalidArgument(format!(
+            "the observation tolerance must be finite and > 0 footprints, not {tolerance}"
+        )))
+    }
+}
+
+/// [`faces_observed`] for the faces `among` flags (one flag a face); the others are false and
+/// cost nothing.
+pub(crate) fn faces_observed_among(
+    mesh: &TriMesh,
+    depths: &[DepthMap],
+    tolerance: f32,
+    among: &[bool],
+) -> Result<Vec<bool>> {
     if depths.is_empty() {
         return Err(EvalError::InvalidArgument(
             "observing faces needs at least one depth map".into(),
         ));
     }
-    if !(tolerance.is_finite() && tolerance > 0.0) {
-        return Err(EvalError::InvalidArgument(format!(
-            "the observation tolerance must be finite and > 0 footprints, not {tolerance}"
-        )));
-    }
+    check_tolerance(tolerance)?;
+    debug_assert_eq!(among.len(), mesh.triangles.len());
     for (k, dm) in depths.iter().enumerate() {
         let n = dm.camera.width as usize * dm.camera.height as usize;
         if dm.depth.len() != n {
@@ -470,7 +485,11 @@ pub fn faces_observed(mesh: &TriMesh, depths: &[DepthMap], tolerance: f32) -> Re
     let shown: Vec<bool> = mesh
         .triangles
         .par_iter()
-        .map(|t| {
+        .zip(among)
+        .map(|(t, among)| {
+            if !among {
+                return false;
+            }
             let n = face_normal_scaled(mesh, *t);
             let c = face_centroid(mesh, *t);
             depths.iter().zip(&eyes).any(|(dm, eye)| {

@@ -95,6 +95,30 @@ fn depth_maps(s: &Scene) -> Vec<DepthMap<'_>> {
         .collect()
 }
 
+/// The masks' own depth per camera of `s`: `hull` ray cast.
+fn hull_depths(s: &Scene, hull: &gtsr_data::ply::TriMesh) -> Vec<Vec<f32>> {
+    let caster = MeshRaycaster::new(hull, "the masks' mesh").unwrap();
+    s.cams.iter().map(|c| caster.render(c).depth).collect()
+}
+
+/// `depths` (one per camera of `s`) with the masks' own depth beside them, for the gate.
+fn gated_maps<'a>(
+    s: &'a Scene,
+    depths: &'a [Vec<f32>],
+    hulls: &'a [Vec<f32>],
+) -> Vec<DepthMap<'a>> {
+    s.cams
+        .iter()
+        .zip(depths)
+        .zip(hulls)
+        .map(|((camera, depth), hull)| DepthMap {
+            camera,
+            depth,
+            hull_depth: Some(hull),
+        })
+        .collect()
+}
+
 /// The field's value at the grid point nearest `p`.
 fn at(grid: &gtsr_eval::Grid, p: Vec3) -> f32 {
     let c = ((p - grid.origin) / grid.voxel).round();
@@ -342,19 +366,8 @@ fn the_extraction_recipe_carves_with_masks_and_fuses_a_tsdf_without() {
         ..MeshConfig::default()
     };
     let (carved, notes) = extract_mesh(&closed, &inputs).unwrap();
-    let caster = MeshRaycaster::new(&alone.mesh, "the masks' mesh").unwrap();
-    let hull_depths: Vec<Vec<f32>> = s.cams.iter().map(|c| caster.render(c).depth).collect();
-    let maps: Vec<DepthMap> = s
-        .cams
-        .iter()
-        .zip(&s.depths)
-        .zip(&hull_depths)
-        .map(|((camera, depth), hull)| DepthMap {
-            camera,
-            depth,
-            hull_depth: Some(hull),
-        })
-        .collect();
+    let hulls = hull_depths(&s, &alone.mesh);
+    let maps = gated_maps(&s, &s.depths, &hulls);
     let direct = carve_mesh(
         &alone.borrowed(),
         &maps,
@@ -523,8 +536,7 @@ fn the_concavity_gate_carves_the_pit_and_leaves_the_faces_to_the_masks() {
     let s = scene();
     let masks = mask_views(&s);
     let hull = masks_mesh(&masks, Some(VOXEL)).unwrap().expect("a hull");
-    let caster = MeshRaycaster::new(&hull, "hull").unwrap();
-    let hull_depths: Vec<Vec<f32>> = s.cams.iter().map(|c| caster.render(c).depth).collect();
+    let hulls = hull_depths(&s, &hull);
     // Rendered depth lies behind the surface: two footprints here.
     let behind: Vec<Vec<f32>> = s
         .cams
@@ -532,17 +544,7 @@ fn the_concavity_gate_carves_the_pit_and_leaves_the_faces_to_the_masks() {
         .zip(&s.depths)
         .map(|(c, d)| d.iter().map(|&z| z + 2.0 * z / c.fx).collect())
         .collect();
-    let maps: Vec<DepthMap> = s
-        .cams
-        .iter()
-        .zip(&behind)
-        .zip(&hull_depths)
-        .map(|((camera, depth), hull)| DepthMap {
-            camera,
-            depth,
-            hull_depth: Some(hull),
-        })
-        .collect();
+    let maps = gated_maps(&s, &behind, &hulls);
     let single = |concavity_gate| CarveSettings {
         min_views: 1,
         margin_footprints: 0.0,
@@ -582,16 +584,7 @@ fn the_concavity_gate_carves_the_pit_and_leaves_the_faces_to_the_masks() {
         assert!(at(&gated, p) > 0.0, "the pit is carved at {p}");
     }
     // Depth that agrees with the hull carves nothing.
-    let flat: Vec<DepthMap> = s
-        .cams
-        .iter()
-        .zip(&hull_depths)
-        .map(|(camera, hull)| DepthMap {
-            camera,
-            depth: hull,
-            hull_depth: Some(hull),
-        })
-        .collect();
+    let flat = gated_maps(&s, &hulls, &hulls);
     let none = carve_grid(&masks, &flat, LO, HI, VOXEL, &single(3.0)).unwrap();
     let by_masks = masks_grid(&masks, LO, HI, VOXEL).unwrap();
     let changed = none
