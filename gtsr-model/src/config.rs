@@ -497,6 +497,12 @@ pub struct DensifyConfig {
     /// See [`DensifyConfig::resets_after`].
     #[arg(long = "opacity-reset-every", id = "train.densify.opacity_reset_every", value_name = "STEPS", default_value_t = DensifyConfig::default().opacity_reset_every, value_parser = clap::value_parser!(usize), hide_default_value = true)]
     pub opacity_reset_every: usize,
+    /// No opacity reset at or after this step. Default: the end of densification.
+    ///
+    /// See [`DensifyConfig::resets_after`].
+    #[serde(default = "default_reset_until")]
+    #[arg(long = "opacity-reset-until", id = "train.densify.reset_until", value_name = "STEP", default_value_t = DensifyConfig::default().reset_until, value_parser = clap::value_parser!(usize), hide_default_value = true)]
+    pub reset_until: usize,
     /// Cap on the surface set (densification stops growing it past this). Default: three per
     /// pixel of a view (10,000 to 65,536).
     #[arg(long = "max-surface", id = "train.densify.max_surface", value_name = "N", default_value_t = DensifyConfig::default().max_surface, value_parser = parse_count, hide_default_value = true)]
@@ -529,6 +535,10 @@ pub struct DensifyConfig {
     pub trim_transmittance: f64,
 }
 
+fn default_reset_until() -> usize {
+    usize::MAX
+}
+
 fn default_trim_min_views() -> usize {
     2
 }
@@ -539,13 +549,15 @@ fn default_trim_transmittance() -> f64 {
 
 impl DensifyConfig {
     /// Whether the opacities are reset after the step that makes `done` steps in all: every
-    /// [`Self::opacity_reset_every`] steps strictly before [`Self::end`], as 3DGS does. A reset at
-    /// the end itself would leave every Gaussian at opacity 0.01 with no pruning to follow, and
-    /// the layers that pruning removes after the other resets would all grow back.
+    /// [`Self::opacity_reset_every`] steps strictly before [`Self::end`], as 3DGS does, and
+    /// before [`Self::reset_until`]. A reset at the end itself would leave every Gaussian at
+    /// opacity 0.01 with no pruning to follow, and the layers that pruning removes after the
+    /// other resets would all grow back.
     pub fn resets_after(&self, done: usize) -> bool {
         self.opacity_reset_every > 0
             && done.is_multiple_of(self.opacity_reset_every)
             && done < self.end
+            && done < self.reset_until
     }
 
     /// Whether the multi-view trim runs after the step that makes `done` steps in all: every
@@ -569,6 +581,7 @@ impl Default for DensifyConfig {
             percent_dense: 0.01,
             min_opacity: 0.005,
             opacity_reset_every: 3000,
+            reset_until: 15_000,
             max_surface: 200_000,
             max_interior: 50_000,
             trim_every: 0,
@@ -745,6 +758,7 @@ impl TrainConfig {
         self.densify.end = frac(0.5);
         self.densify.every = frac(100.0 / 30000.0).max(10);
         self.densify.opacity_reset_every = frac(3000.0 / 30000.0);
+        self.densify.reset_until = self.densify.end;
     }
 
     /// Checks the configuration, returning every problem in words.
@@ -838,6 +852,23 @@ mod tests {
             ..d.clone()
         };
         assert!(!(1..=c.iterations).any(|s| never.resets_after(s)));
+        // Resets only in stage 1 (before step 350 of 1500).
+        let stage1 = DensifyConfig {
+            reset_until: c.stage2_start,
+            ..d.clone()
+        };
+        let early: Vec<usize> = (1..=c.iterations)
+            .filter(|s| stage1.resets_after(*s))
+            .collect();
+        assert_eq!((c.stage2_start, early), (350, vec![150, 300]));
+        // A config written before `reset_until` existed resets as it did.
+        let mut json = serde_json::to_value(&c).unwrap();
+        json["densify"]
+            .as_object_mut()
+            .unwrap()
+            .remove("reset_until");
+        let old: TrainConfig = serde_json::from_value(json).unwrap();
+        assert!((1..=c.iterations).all(|s| old.densify.resets_after(s) == d.resets_after(s)));
     }
 
     #[test]

@@ -4,6 +4,7 @@ mod bench_recon;
 mod diagnose_surface;
 mod fusion_ceiling;
 mod gen_scene;
+mod refine;
 mod stability;
 
 use clap::{Parser, Subcommand};

@@ -1,0 +1,437 @@
+//! A diagnostic for `diagnose-surface --refine-anchors`: how much of the masks' error a set of
+//! observed normals could take off. Normal-guided refinement of a mesh that bounds the object
+//! from outside (the masks' mesh):
+//! each vertex moves along its normal, inward only, so that the faces' normals agree with the
+//! normals the views observe ([`observed_normals`]).
+//!
+//! Displacing the vertices of a face by `d_k` along its normal `N` tilts the normal by the
+//! in-plane gradient of the linear interpolant of `d` (to first order, `N' = N - grad d`). So
+//! the displacements that make the normals `n*` are those whose gradient is `-t`, with `t` the
+//! part of `n*` tangent to the face: a Poisson problem on the mesh,
+//!
+//! `min_d  sum_f w_f A_f |grad_f d + t_f|^2 + mu sum_i m_i d_i^2,   d_i <= 0`,
+//!
+//! with `A_f` the face areas, `m_i` the vertex areas (a third of the faces around), `w_f` the
+//! weight of the face's observed normal, and `mu = 1 / anchor^2` pulling every vertex back to
+//! where it was over the length `anchor`. It is solved by conjugate gradients; the vertices
+//! the solution would push outward are held in place and the rest solved again (an active
+//! set). Faces no view observes keep their own normal as the target (`t = 0`).
+
+use glam::Vec3;
+use gtsr_data::Camera;
+use gtsr_data::ply::TriMesh;
+
+use anyhow::{Result, bail};
+
+/// Settings of [`refine_with_normals`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RefineSettings {
+    /// The length over which the displacements return to zero where the normals say nothing
+    /// (scene units): `mu = 1 / anchor^2`.
+    pub anchor: f32,
+    /// The farthest a vertex may move inward (scene units).
+    pub max_depth: f32,
+    /// The farthest a vertex may move outward (scene units; 0: inward only).
+    pub max_outward: f32,
+    /// The largest tangential correction per face (the sine of the largest tilt trusted).
+    pub max_tilt: f32,
+    /// Conjugate-gradient iterations per solve.
+    pub iterations: usize,
+    /// Active-set rounds (solves).
+    pub rounds: usize,
+}
+
+impl Default for RefineSettings {
+    fn default() -> Self {
+        RefineSettings {
+            anchor: 0.1,
+            max_depth: 0.2,
+            max_outward: 0.0,
+            max_tilt: 0.5,
+            iterations: 400,
+            rounds: 8,
+        }
+    }
+}
+
+/// Per face, the observed normal and its weight in `[0, 1]` (0: not observed).
+#[derive(Clone, Debug, Default)]
+pub struct FaceNormals {
+    /// Unit world-space normal per face (zero where not observed).
+    pub normal: Vec<Vec3>,
+    /// Weight per face.
+    pub weight: Vec<f32>,
+}
+
+/// One view's normal map for [`observed_normals`].
+pub struct NormalView<'a> {
+    /// The camera (pixel centres at `i + 0.5`).
+    pub camera: &'a Camera,
+    /// Camera-space normals, 3 per pixel, row-major (zero where nothing was rendered).
+    pub normal: &'a [f32],
+    /// The mesh's own depth through each pixel centre (`0` on a miss): a face is observed at
+    /// a pixel only where it is the first surface the pixel's ray meets.
+    pub mesh_depth: &'a [f32],
+}
+
+/// The normals the views observe on each face of `mesh`: a face is observed in a view when it
+/// faces the camera (cosine at least `min_cos`) and its centroid lies within half a pixel footprint of
+/// the mesh's own first hit at the pixel it projects to; the view's normal there (rotated to
+/// the world) counts with that cosine as its weight. The weight of a face is the length of
+/// the weighted mean of its unit normals (1 when every view agrees), 0 when fewer than
+/// `min_views` views observe it.
+pub fn observed_normals(
+    mesh: &TriMesh,
+    views: &[NormalView<'_>],
+    min_views: usize,
+    min_cos: f32,
+) -> Result<FaceNormals> {
+    let nf = mesh.triangles.len();
+    for v in views {
+        let n = v.camera.width as usize * v.camera.height as usize;
+        if v.normal.len() != 3 * n || v.mesh_depth.len() != n {
+            bail!(
+                "normal view: expected 3 x {n} normals and {n} depths, got {} and {}",
+                v.normal.len(),
+                v.mesh_depth.len()
+            );
+        }
+    }
+    let mut sum = vec![Vec3::ZERO; nf];
+    let mut wsum = vec![0.0f32; nf];
+    let mut count = vec![0usize; nf];
+    for v in views {
+        let cam = v.camera;
+        let to_world = cam.world_to_camera.inverse();
+        let eye = to_world.transform_point3(Vec3::ZERO);
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        for (f, t) in mesh.triangles.iter().enumerate() {
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            let cross = (b - a).cross(c - a);
+            let len = cross.length();
+            if len <= 0.0 || !len.is_finite() {
+                continue;
+            }
+            let nrm = cross / len;
+            let centroid = (a + b + c) / 3.0;
+            let to_eye = (eye - centroid).normalize_or_zero();
+            let cos = nrm.dot(to_eye);
+            if cos < min_cos {
+                continue;
+            }
+            let q = cam.world_to_camera.transform_point3(centroid);
+            if q.z <= 0.0 {
+                continue;
+            }
+            let u = cam.fx * q.x / q.z + cam.cx;
+            let vv = cam.fy * q.y / q.z + cam.cy;
+            if !(u >= 0.0 && vv >= 0.0 && (u as usize) < w && (vv as usize) < h) {
+                continue;
+            }
+            let p = vv as usize * w + u as usize;
+            let z = v.mesh_depth[p];
+            if !(z > 0.0 && (q.z - z).abs() <= 0.5 * q.z / cam.fx) {
+                continue;
+            }
+            let nc = Vec3::new(v.normal[3 * p], v.normal[3 * p + 1], v.normal[3 * p + 2]);
+            let l = nc.length();
+            if !(l.is_finite() && l > 0.0) {
+                continue;
+            }
+            let nw = to_world.transform_vector3(nc / l).normalize_or_zero();
+            sum[f] += cos * nw;
+            wsum[f] += cos;
+            count[f] += 1;
+        }
+    }
+    let mut out = FaceNormals {
+        normal: vec![Vec3::ZERO; nf],
+        weight: vec![0.0; nf],
+    };
+    for f in 0..nf {
+        if count[f] >= min_views.max(1) && wsum[f] > 0.0 {
+            let m = sum[f] / wsum[f];
+            out.normal[f] = m.normalize_or_zero();
+            out.weight[f] = m.length().min(1.0);
+        }
+    }
+    Ok(out)
+}
+
+/// Per face: the gradients of the three hat functions and the area.
+struct FaceGeometry {
+    grads: Vec<[Vec3; 3]>,
+    areas: Vec<f32>,
+    normals: Vec<Vec3>,
+}
+
+fn face_geometry(mesh: &TriMesh) -> FaceGeometry {
+    let nf = mesh.triangles.len();
+    let mut g = FaceGeometry {
+        grads: vec![[Vec3::ZERO; 3]; nf],
+        areas: vec![0.0; nf],
+        normals: vec![Vec3::ZERO; nf],
+    };
+    for (f, t) in mesh.triangles.iter().enumerate() {
+        let [p0, p1, p2] = t.map(|i| mesh.positions[i as usize]);
+        let cross = (p1 - p0).cross(p2 - p0);
+        let len = cross.length();
+        if len <= 1e-20 || !len.is_finite() {
+            continue;
+        }
+        let n = cross / len;
+        let two_a = len;
+        g.grads[f] = [
+            n.cross(p2 - p1) / two_a,
+            n.cross(p0 - p2) / two_a,
+            n.cross(p1 - p0) / two_a,
+        ];
+        g.areas[f] = 0.5 * len;
+        g.normals[f] = n;
+    }
+    g
+}
+
+/// Moves each vertex of `mesh` inward along its normal so that the faces' normals follow
+/// `targets` (see the module docs). Returns the refined mesh and the displacement per vertex
+/// (scene units, negative: inward; at most [`RefineSettings::max_outward`]).
+pub fn refine_with_normals(
+    mesh: &TriMesh,
+    targets: &FaceNormals,
+    settings: &RefineSettings,
+) -> Result<(TriMesh, Vec<f32>)> {
+    let nf = mesh.triangles.len();
+    let nv = mesh.positions.len();
+    if targets.normal.len() != nf || targets.weight.len() != nf {
+        bail!(
+            "face normals: expected {nf}, got {} normals and {} weights",
+            targets.normal.len(),
+            targets.weight.len()
+        );
+    }
+    if !(settings.anchor > 0.0 && settings.max_depth > 0.0 && settings.max_tilt > 0.0) {
+        bail!("refine settings: anchor, max_depth and max_tilt must be positive");
+    }
+    let geo = face_geometry(mesh);
+    // Vertex normals (area-weighted) and areas.
+    let mut vn = vec![Vec3::ZERO; nv];
+    let mut varea = vec![0.0f32; nv];
+    for (f, t) in mesh.triangles.iter().enumerate() {
+        for &i in t {
+            vn[i as usize] += geo.normals[f] * geo.areas[f];
+            varea[i as usize] += geo.areas[f] / 3.0;
+        }
+    }
+    for n in vn.iter_mut() {
+        *n = n.normalize_or_zero();
+    }
+    // Face weights and tangential targets.
+    let mut wf = vec![1.0f32; nf];
+    let mut tf = vec![Vec3::ZERO; nf];
+    for f in 0..nf {
+        let n = geo.normals[f];
+        let w = targets.weight[f];
+        if w > 0.0 {
+            let s = targets.normal[f];
+            let mut t = s - s.dot(n) * n;
+            let l = t.length();
+            if l > settings.max_tilt {
+                t *= settings.max_tilt / l;
+            }
+            if s.dot(n) <= 0.0 {
+                t = Vec3::ZERO;
+            }
+            tf[f] = t;
+            wf[f] = w;
+        }
+    }
+    let mu = 1.0 / (settings.anchor * settings.anchor);
+    // b = -sum_f w A grad_k . t
+    let mut b = vec![0.0f64; nv];
+    for (f, t) in mesh.triangles.iter().enumerate() {
+        let c = (wf[f] * geo.areas[f]) as f64;
+        for k in 0..3 {
+            b[t[k] as usize] -= c * geo.grads[f][k].dot(tf[f]) as f64;
+        }
+    }
+    // Solved for y = d - max_outward <= 0: the anchor term mu m (y + c)^2 moves into b.
+    let c = settings.max_outward.max(0.0) as f64;
+    for (bi, m) in b.iter_mut().zip(&varea) {
+        *bi -= mu as f64 * *m as f64 * c;
+    }
+    let apply = |x: &[f64], out: &mut [f64], free: &[bool]| {
+        for (o, (xi, m)) in out.iter_mut().zip(x.iter().zip(&varea)) {
+            *o = mu as f64 * *m as f64 * xi;
+        }
+        for (f, t) in mesh.triangles.iter().enumerate() {
+            let c = (wf[f] * geo.areas[f]) as f64;
+            if c == 0.0 {
+                continue;
+            }
+            let g = &geo.grads[f];
+            let gx = g[0].as_dvec3() * x[t[0] as usize]
+                + g[1].as_dvec3() * x[t[1] as usize]
+                + g[2].as_dvec3() * x[t[2] as usize];
+            for k in 0..3 {
+                out[t[k] as usize] += c * g[k].as_dvec3().dot(gx);
+            }
+        }
+        for (o, f) in out.iter_mut().zip(free) {
+            if !f {
+                *o = 0.0;
+            }
+        }
+    };
+    let mut free = vec![true; nv];
+    let mut x = vec![0.0f64; nv];
+    for _ in 0..settings.rounds.max(1) {
+        // Conjugate gradients on the free vertices (the held ones stay at 0).
+        for (xi, f) in x.iter_mut().zip(&free) {
+            if !f {
+                *xi = 0.0;
+            }
+        }
+        let mut ax = vec![0.0f64; nv];
+        apply(&x, &mut ax, &free);
+        let mut r: Vec<f64> = (0..nv)
+            .map(|i| if free[i] { b[i] - ax[i] } else { 0.0 })
+            .collect();
+        let mut p = r.clone();
+        let mut rr: f64 = r.iter().map(|v| v * v).sum();
+        let rr0 = rr.max(1e-300);
+        let mut ap = vec![0.0f64; nv];
+        for _ in 0..settings.iterations {
+            if rr <= 1e-12 * rr0 {
+                break;
+            }
+            apply(&p, &mut ap, &free);
+            let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
+            if pap <= 0.0 || !pap.is_finite() {
+                break;
+            }
+            let alpha = rr / pap;
+            for i in 0..nv {
+                x[i] += alpha * p[i];
+                r[i] -= alpha * ap[i];
+            }
+            let rr_new: f64 = r.iter().map(|v| v * v).sum();
+            let beta = rr_new / rr;
+            rr = rr_new;
+            for i in 0..nv {
+                p[i] = r[i] + beta * p[i];
+            }
+        }
+        // Hold the vertices pushed outward; release the held ones the energy pulls inward.
+        let all = vec![true; nv];
+        apply(&x, &mut ax, &all);
+        let mut changed = false;
+        for i in 0..nv {
+            if free[i] && x[i] > 0.0 {
+                free[i] = false;
+                changed = true;
+            } else if !free[i] && b[i] - ax[i] < 0.0 {
+                free[i] = true;
+                changed = true;
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
+    let d: Vec<f32> = x
+        .iter()
+        .map(|v| ((*v + c) as f32).clamp(-settings.max_depth, c as f32))
+        .collect();
+    let positions = mesh
+        .positions
+        .iter()
+        .zip(&vn)
+        .zip(&d)
+        .map(|((p, n), d)| *p + *n * *d)
+        .collect();
+    Ok((
+        TriMesh {
+            positions,
+            triangles: mesh.triangles.clone(),
+        },
+        d,
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A flat grid `z = 0` over `[-1, 1]^2` with `n` cells a side, normals up.
+    fn grid(n: usize) -> TriMesh {
+        let mut positions = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                positions.push(Vec3::new(
+                    -1.0 + 2.0 * i as f32 / n as f32,
+                    -1.0 + 2.0 * j as f32 / n as f32,
+                    0.0,
+                ));
+            }
+        }
+        let mut triangles = Vec::new();
+        let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+        for j in 0..n {
+            for i in 0..n {
+                triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        TriMesh {
+            positions,
+            triangles,
+        }
+    }
+
+    #[test]
+    fn normals_of_a_dent_carve_the_dent() {
+        // Target: the normals of z = -0.1 (1 - r^2) inside r < 1 (a bowl), flat outside.
+        let mesh = grid(40);
+        let bowl = |p: Vec3| -> Vec3 {
+            let r2 = p.x * p.x + p.y * p.y;
+            if r2 < 1.0 {
+                // grad z = 0.2 (x, y); normal (-z_x, -z_y, 1).
+                Vec3::new(-0.2 * p.x, -0.2 * p.y, 1.0).normalize()
+            } else {
+                Vec3::Z
+            }
+        };
+        let normal: Vec<Vec3> = mesh
+            .triangles
+            .iter()
+            .map(|t| bowl(t.map(|i| mesh.positions[i as usize]).iter().sum::<Vec3>() / 3.0))
+            .collect();
+        let targets = FaceNormals {
+            weight: vec![1.0; normal.len()],
+            normal,
+        };
+        let settings = RefineSettings {
+            anchor: 10.0,
+            max_depth: 1.0,
+            ..RefineSettings::default()
+        };
+        let (_, d) = refine_with_normals(&mesh, &targets, &settings).unwrap();
+        let centre = d[20 * 41 + 20];
+        eprintln!(
+            "{:?}",
+            (0..41)
+                .step_by(4)
+                .map(|i| d[20 * 41 + i])
+                .collect::<Vec<_>>()
+        );
+        assert!(d.iter().all(|v| *v <= 0.0));
+        assert!((centre + 0.1).abs() < 0.02, "centre moved {centre}");
+        // Flat target: nothing moves.
+        let flat = FaceNormals {
+            weight: vec![1.0; mesh.triangles.len()],
+            normal: vec![Vec3::Z; mesh.triangles.len()],
+        };
+        let (_, d) = refine_with_normals(&mesh, &flat, &settings).unwrap();
+        assert!(d.iter().all(|v| v.abs() < 1e-6));
+    }
+}
