@@ -1,6 +1,7 @@
 //! Project tasks: `cargo xtask <command>`.
 
 mod bench_recon;
+mod concavity;
 mod diagnose_surface;
 mod fusion_ceiling;
 mod gen_scene;

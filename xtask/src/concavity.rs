@@ -1,0 +1,335 @@
+//! `diagnose-surface --concavity-gap`: what the training pixels show where the masks are blind,
+//! how good the run's normals are where the masks are off, and (`--refine-anchors`) how far
+//! those normals could refine the masks' mesh ([`crate::refine`]). For the development scenes
+//! only: the ground truth diagnoses, it never trains.
+
+use anyhow::{Context, Result, bail};
+use glam::Vec3;
+use gtsr_data::{Downscale, LoadOptions, load_scene};
+use gtsr_eval::tsdf::median_pixel_footprint;
+use gtsr_model::gaussians::host_vec;
+
+use crate::diagnose_surface::percentile;
+
+/// Pixel classes of [`report`].
+const CLASSES: [&str; 3] = [
+    "into a concavity (truth beyond the gap)",
+    "around them (8-neighbours, truth within half a footprint of the masks)",
+    "elsewhere on the object (truth within half a footprint of the masks)",
+];
+
+/// Per class: pixels, and sums of the image's mean channel, the C_SH and C_PBR absolute
+/// residuals and the signed C_SH one (render minus image; mean over channels), the run's depth
+/// and the truth's behind the masks' depth (footprints), and the pixels where the run's depth
+/// lies beyond the gap.
+#[derive(Clone, Copy, Default)]
+struct ClassSums {
+    pixels: usize,
+    image: f64,
+    res_sh: f64,
+    res_pbr: f64,
+    signed_sh: f64,
+    model_gap: f64,
+    model_beyond: usize,
+    truth_gap: f64,
+}
+
+/// The concavity report of `diagnose-surface --concavity-gap`: on every training view,
+/// the masks' mesh (native masks, [`gtsr_eval::MasksAlone`]) and the ground truth are ray cast
+/// through each pixel; a pixel looks into a concavity the masks cannot see when the truth lies
+/// more than `gap` footprints (`z / fx`) behind the masks' depth there. Those pixels are
+/// compared with their 8-neighbours on the flush surface and with the rest of the object: if
+/// the run fits them as well as their neighbours while its depth stays at the masks', the
+/// images do not contradict a lid over the concavity. The report also bins the normal error of
+/// the masks' mesh and of the run by how far the truth lies behind the masks' depth, and with
+/// `anchors` adds [`refine_rows`].
+pub(crate) fn report(
+    trainer: &gtsr_model::Trainer,
+    scene: &gtsr_data::Scene,
+    gt: &gtsr_data::ply::TriMesh,
+    data: &std::path::Path,
+    gap: f32,
+    anchors: &[f32],
+    front_normals: Option<f64>,
+) -> Result<String> {
+    let native = load_scene(
+        data,
+        &LoadOptions {
+            downscale: Downscale::None,
+            ..LoadOptions::default()
+        },
+    )
+    .with_context(|| format!("loading {} at its own size", data.display()))?;
+    let masks: Vec<(gtsr_data::Camera, Vec<f32>)> = native
+        .train
+        .iter()
+        .filter_map(|v| v.mask.clone().map(|m| (v.camera, m)))
+        .collect();
+    if masks.len() != native.train.len() {
+        bail!(
+            "{}: the concavity report needs a mask on every training view",
+            data.display()
+        );
+    }
+    let alone = gtsr_eval::MasksAlone::new(masks)?.context("the masks are empty")?;
+    let hull_caster = gtsr_eval::MeshRaycaster::new(&alone.mesh, "masks' mesh")?;
+    let gt_caster = gtsr_eval::MeshRaycaster::new(gt, "ground-truth mesh")?;
+    let model = trainer.model().detached();
+    let last = trainer.steps_done().saturating_sub(1);
+    let opts = trainer.render_options(last, false);
+    let mut sums = [ClassSums::default(); 3];
+    let mut kept_maps: Vec<NormalMaps> = Vec::new();
+    let mut normal_bins: Vec<(Vec<f32>, Vec<f32>)> =
+        vec![Default::default(); NORMAL_BINS.len() + 1];
+    for (v, data) in trainer.views().iter().zip(&scene.train) {
+        let mask = data
+            .mask
+            .as_deref()
+            .context("a training view without a mask")?;
+        let (w, h) = (data.camera.width as usize, data.camera.height as usize);
+        let truth_maps = gt_caster.render(&data.camera);
+        let hull_maps = hull_caster.render(&data.camera);
+        let (truth, hull) = (&truth_maps.depth, &hull_maps.depth);
+        let r = model.render(&v.camera, &v.rays, opts)?;
+        let c_sh = host_vec(r.c_sh);
+        let c_pbr = r.c_pbr.map(host_vec);
+        let g = model.render_depth(&v.camera, &v.rays)?;
+        let depth = host_vec(g.depth);
+        let run_normal = match front_normals {
+            Some(t) => host_vec(model.render_depth_crossing(&v.camera, &v.rays, t)?.normal),
+            None => host_vec(g.normal),
+        };
+        let fx = data.camera.fx;
+        let on = |p: usize| mask[p] > 0.5 && truth[p] > 0.0 && hull[p] > 0.0;
+        let gap_fp = |p: usize| (truth[p] - hull[p]) * fx / hull[p];
+        if !anchors.is_empty() {
+            let flat =
+                |n: &[Vec3]| -> Vec<f32> { n.iter().flat_map(|n| [n.x, n.y, n.z]).collect() };
+            kept_maps.push((
+                run_normal.clone(),
+                flat(&truth_maps.normal),
+                hull.clone(),
+                flat(&hull_maps.normal),
+            ));
+        }
+        for p in (0..w * h).filter(|p| on(*p)) {
+            let b = NORMAL_BINS.iter().take_while(|e| gap_fp(p) >= **e).count();
+            let t = truth_maps.normal[p];
+            let angle = |n: Vec3| -> Option<f32> {
+                let l = n.length();
+                (l.is_finite() && l > 0.0)
+                    .then(|| (n / l).dot(t).clamp(-1.0, 1.0).acos().to_degrees())
+            };
+            let rn = Vec3::from_slice(&run_normal[3 * p..3 * p + 3]);
+            if let (Some(a_hull), Some(a_run)) = (angle(hull_maps.normal[p]), angle(rn)) {
+                normal_bins[b].0.push(a_hull);
+                normal_bins[b].1.push(a_run);
+            }
+        }
+        let class_of = |p: usize| -> Option<usize> {
+            if !on(p) {
+                return None;
+            }
+            let g = gap_fp(p);
+            if g > gap {
+                return Some(0);
+            }
+            if g.abs() > 0.5 {
+                return None;
+            }
+            let (i, j) = ((p % w) as i64, (p / w) as i64);
+            let near = (-1..=1i64).any(|dj| {
+                (-1..=1i64).any(|di| {
+                    let (x, y) = (i + di, j + dj);
+                    x >= 0
+                        && y >= 0
+                        && (x as usize) < w
+                        && (y as usize) < h
+                        && on(y as usize * w + x as usize)
+                        && gap_fp(y as usize * w + x as usize) > gap
+                })
+            });
+            Some(if near { 1 } else { 2 })
+        };
+        for p in 0..w * h {
+            let Some(c) = class_of(p) else { continue };
+            let s = &mut sums[c];
+            let px = &data.rgb[3 * p..3 * p + 3];
+            let res = |img: &[f32]| -> f64 {
+                (0..3)
+                    .map(|k| (img[3 * p + k].clamp(0.0, 1.0) - px[k]).abs() as f64)
+                    .sum::<f64>()
+                    / 3.0
+            };
+            s.pixels += 1;
+            s.image += px.iter().map(|x| *x as f64).sum::<f64>() / 3.0;
+            s.res_sh += res(&c_sh);
+            s.res_pbr += c_pbr.as_deref().map_or(f64::NAN, res);
+            s.signed_sh += (0..3)
+                .map(|k| (c_sh[3 * p + k].clamp(0.0, 1.0) - px[k]) as f64)
+                .sum::<f64>()
+                / 3.0;
+            let model_gap = (depth[p] - hull[p]) * fx / hull[p];
+            s.model_gap += model_gap as f64;
+            s.model_beyond += usize::from(model_gap > gap);
+            s.truth_gap += gap_fp(p) as f64;
+        }
+    }
+    let mut md = format!(
+        "\n## Pixels that look into a concavity the masks cannot see\n\nEvery training view \
+         ({} views); the truth more than {gap} footprints behind the masks' depth. Means per \
+         pixel: the image (mean channel), the run's absolute residuals and its signed C_SH one \
+         (render minus image), the run's depth and the truth behind the masks' depth, in \
+         footprints, and the share of pixels where the run's depth lies beyond the gap.\n\n\
+         | pixels | count | image | C_SH residual | C_PBR residual | C_SH signed | run's depth \
+         behind the masks | truth behind the masks | run beyond the gap |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        scene.train.len()
+    );
+    for (name, s) in CLASSES.iter().zip(&sums) {
+        let n = s.pixels.max(1) as f64;
+        md.push_str(&format!(
+            "| {name} | {} | {:.4} | {:.4} | {:.4} | {:+.4} | {:+.2} | {:+.2} | {:.1} % |\n",
+            s.pixels,
+            s.image / n,
+            s.res_sh / n,
+            s.res_pbr / n,
+            s.signed_sh / n,
+            s.model_gap / n,
+            s.truth_gap / n,
+            100.0 * s.model_beyond as f64 / n
+        ));
+    }
+    md.push_str(&format!(
+        "\nNormal error (degrees, median / mean) of the masks' mesh and of the run's {} \
+         against the truth's, on the same pixels, by where the truth lies behind the masks' \
+         depth (footprints):\n\n| truth behind the masks | pixels | masks' mesh | run |\n\
+         |---|---:|---:|---:|\n",
+        front_normals.map_or("blended normal".to_string(), |t| format!(
+            "normal at its front (transmittance {t})"
+        ))
+    ));
+    for (b, (hull, run)) in normal_bins.iter_mut().enumerate() {
+        if hull.is_empty() {
+            continue;
+        }
+        let label = match b {
+            0 => format!("< {}", NORMAL_BINS[0]),
+            b if b == NORMAL_BINS.len() => format!(">= {}", NORMAL_BINS[b - 1]),
+            b => format!("[{}, {})", NORMAL_BINS[b - 1], NORMAL_BINS[b]),
+        };
+        let stats = |v: &mut Vec<f32>| -> (f32, f64) {
+            v.sort_by(f32::total_cmp);
+            let mean = v.iter().map(|x| *x as f64).sum::<f64>() / v.len() as f64;
+            (percentile(v, 0.5), mean)
+        };
+        let (hm, ha) = stats(hull);
+        let (rm, ra) = stats(run);
+        md.push_str(&format!(
+            "| {label} | {} | {hm:.1} / {ha:.1} | {rm:.1} / {ra:.1} |\n",
+            hull.len()
+        ));
+    }
+    if !anchors.is_empty() {
+        md.push_str(&refine_rows(scene, gt, &alone.mesh, &kept_maps, anchors)?);
+    }
+    Ok(md)
+}
+
+/// Per training view: the run's normal map, the truth's, the masks' mesh depth and its normals.
+type NormalMaps = (Vec<f32>, Vec<f32>, Vec<f32>, Vec<f32>);
+
+/// The refinement rows of `--refine-anchors`: the masks' mesh refined
+/// (`refine.rs`) by the normals of the run, of the truth, of the masks' mesh itself (what the
+/// refinement gives without any new information), and of the run only where it departs from
+/// the masks' own by more than 8 degrees; inward only and with a quarter footprint outward.
+fn refine_rows(
+    scene: &gtsr_data::Scene,
+    gt: &gtsr_data::ply::TriMesh,
+    hull: &gtsr_data::ply::TriMesh,
+    maps: &[NormalMaps],
+    anchors: &[f32],
+) -> Result<String> {
+    use crate::refine::{
+        FaceNormals, NormalView, RefineSettings, observed_normals, refine_with_normals,
+    };
+    let cameras: Vec<gtsr_data::Camera> = scene.train.iter().map(|v| v.camera).collect();
+    let footprint = median_pixel_footprint(cameras.iter(), Vec3::ZERO);
+    let score = |mesh: &gtsr_data::ply::TriMesh| -> Result<String> {
+        let (seen, _) = gtsr_eval::score_against_ground_truth(mesh, gt, &cameras, Some(hull))?;
+        Ok(format!(
+            "{:.3} | {:.3} | {:.3} | {:.2}",
+            1e3 * seen.chamfer,
+            1e3 * seen.accuracy,
+            1e3 * seen.completeness,
+            1e3 * seen.hull_blind.map_or(f64::NAN, |b| b.blind)
+        ))
+    };
+    let observed = |normal: fn(&NormalMaps) -> &[f32]| -> Result<FaceNormals> {
+        let views: Vec<NormalView<'_>> = cameras
+            .iter()
+            .zip(maps)
+            .map(|(c, m)| NormalView {
+                camera: c,
+                normal: normal(m),
+                mesh_depth: &m.2,
+            })
+            .collect();
+        observed_normals(hull, &views, 1, REFINE_MIN_COS)
+    };
+    let run = observed(|m| &m.0)?;
+    let truth = observed(|m| &m.1)?;
+    let own = observed(|m| &m.3)?;
+    let mut departing = own.clone();
+    let cos = 8f32.to_radians().cos();
+    for f in 0..departing.normal.len() {
+        if run.weight[f] > 0.0 && own.weight[f] > 0.0 && run.normal[f].dot(own.normal[f]) < cos {
+            departing.normal[f] = run.normal[f];
+            departing.weight[f] = run.weight[f];
+        }
+    }
+    let sources = [
+        ("run", &run),
+        ("truth", &truth),
+        ("masks' own", &own),
+        ("run beyond 8 deg of the masks' own", &departing),
+    ];
+    let mut md = String::from(
+        "\nThe masks' mesh refined by the observed normals (`xtask/src/refine.rs`; chamfer, \
+         accuracy, completeness, hull-blind, x1e3; moves in scene units):\n\n| normals | \
+         anchor | outward (footprints) | chamfer | accuracy | completeness | hull-blind | mean \
+         / largest inward move |\n|---|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    md.push_str(&format!(
+        "| none (masks alone) | | | {} | |\n",
+        score(hull)?
+    ));
+    for outward in [0.0f32, 0.25] {
+        for (label, targets) in sources {
+            for &anchor in anchors {
+                let settings = RefineSettings {
+                    anchor,
+                    max_outward: outward * footprint,
+                    ..RefineSettings::default()
+                };
+                let (mesh, d) = refine_with_normals(hull, targets, &settings)?;
+                let mean = d.iter().map(|v| *v as f64).sum::<f64>() / d.len().max(1) as f64;
+                let most = d.iter().fold(0.0f32, |a, v| a.min(*v));
+                let row = format!(
+                    "| {label} | {anchor} | {outward} | {} | {mean:.4} / {most:.4} |\n",
+                    score(&mesh)?
+                );
+                println!("{}", row.trim_end());
+                md.push_str(&row);
+            }
+        }
+    }
+    Ok(md)
+}
+
+/// Least cosine between a face and the view direction for a view's normal to count in the
+/// refinement; above it each view counts with that cosine as its weight.
+const REFINE_MIN_COS: f32 = 0.2;
+
+/// Bin edges (footprints) of the truth's depth behind the masks' depth, for the normal table.
+const NORMAL_BINS: [f32; 5] = [-0.25, 0.25, 0.5, 1.0, 3.0];
