@@ -9,7 +9,9 @@ use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_eval::tsdf::median_pixel_footprint;
 use gtsr_model::gaussians::host_vec;
 
-use crate::diagnose_surface::percentile;
+use rand::{RngExt, SeedableRng, rngs::StdRng};
+
+use crate::diagnose_surface::{DiagnoseSurfaceArgs, percentile};
 
 /// Pixel classes of [`report`].
 const CLASSES: [&str; 3] = [
@@ -47,11 +49,10 @@ pub(crate) fn report(
     trainer: &gtsr_model::Trainer,
     scene: &gtsr_data::Scene,
     gt: &gtsr_data::ply::TriMesh,
-    data: &std::path::Path,
-    gap: f32,
-    anchors: &[f32],
-    front_normals: Option<f64>,
+    args: &DiagnoseSurfaceArgs,
 ) -> Result<String> {
+    let (data, gap, anchors) = (&args.data, args.concavity_gap, &args.refine_anchors);
+    let (front_normals, noise) = (args.front_normals, &args.refine_noise);
     let native = load_scene(
         data,
         &LoadOptions {
@@ -231,7 +232,14 @@ pub(crate) fn report(
         ));
     }
     if !anchors.is_empty() {
-        md.push_str(&refine_rows(scene, gt, &alone.mesh, &kept_maps, anchors)?);
+        md.push_str(&refine_rows(
+            scene,
+            gt,
+            &alone.mesh,
+            &kept_maps,
+            anchors,
+            noise,
+        )?);
     }
     Ok(md)
 }
@@ -249,6 +257,7 @@ fn refine_rows(
     hull: &gtsr_data::ply::TriMesh,
     maps: &[NormalMaps],
     anchors: &[f32],
+    noise: &[f32],
 ) -> Result<String> {
     use crate::refine::{
         FaceNormals, NormalView, RefineSettings, observed_normals, refine_with_normals,
@@ -280,6 +289,24 @@ fn refine_rows(
     let run = observed(|m| &m.0)?;
     let truth = observed(|m| &m.1)?;
     let own = observed(|m| &m.3)?;
+    // Per face, after the views are averaged: how far the run's and the masks' own normals
+    // lie from the truth's.
+    let face_error = |x: &FaceNormals| -> (f32, f64) {
+        let mut e: Vec<f32> = (0..x.normal.len())
+            .filter(|f| x.weight[*f] > 0.0 && truth.weight[*f] > 0.0)
+            .map(|f| {
+                x.normal[f]
+                    .dot(truth.normal[f])
+                    .clamp(-1.0, 1.0)
+                    .acos()
+                    .to_degrees()
+            })
+            .collect();
+        e.sort_by(f32::total_cmp);
+        let mean = e.iter().map(|v| *v as f64).sum::<f64>() / e.len().max(1) as f64;
+        (percentile(&e, 0.5), mean)
+    };
+    let ((rm, ra), (om, oa)) = (face_error(&run), face_error(&own));
     let mut departing = own.clone();
     let cos = 8f32.to_radians().cos();
     for f in 0..departing.normal.len() {
@@ -304,6 +331,12 @@ fn refine_rows(
         "| none (masks alone) | | | {} | |\n",
         score(hull)?
     ));
+    let errors = format!(
+        "Per face, the views averaged, against the truth's (degrees, median / mean): the run's \
+         normals {rm:.1} / {ra:.1}, the masks' own {om:.1} / {oa:.1}.\n\n"
+    );
+    println!("{}", errors.trim_end());
+    md.insert_str(md.find("| normals |").unwrap_or(md.len()), &errors);
     for outward in [0.0f32, 0.25] {
         for (label, targets) in sources {
             for &anchor in anchors {
@@ -322,6 +355,63 @@ fn refine_rows(
                 println!("{}", row.trim_end());
                 md.push_str(&row);
             }
+        }
+    }
+    // The truth's normals tilted at random: each pixel's normal plus a tangent Gaussian.
+    for &sigma in noise {
+        let mut rng = StdRng::seed_from_u64(0x6e6f697365);
+        let mut tilts = Vec::new();
+        let noisy: Vec<Vec<f32>> = maps
+            .iter()
+            .map(|m| {
+                m.1.chunks_exact(3)
+                    .flat_map(|c| {
+                        let n = Vec3::from_slice(c);
+                        if n == Vec3::ZERO {
+                            return [0.0; 3];
+                        }
+                        let mut gauss = || -> f32 {
+                            let u1: f32 = rng.random_range(f32::EPSILON..1.0);
+                            let u2: f32 = rng.random_range(0.0..1.0);
+                            (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
+                        };
+                        let g = Vec3::new(gauss(), gauss(), gauss()) * sigma.to_radians();
+                        let tilted = (n + (g - g.dot(n) * n)).normalize();
+                        tilts.push(tilted.dot(n).clamp(-1.0, 1.0).acos().to_degrees());
+                        tilted.to_array()
+                    })
+                    .collect()
+            })
+            .collect();
+        tilts.sort_by(f32::total_cmp);
+        let views: Vec<NormalView<'_>> = cameras
+            .iter()
+            .zip(maps)
+            .zip(&noisy)
+            .map(|((c, m), n)| NormalView {
+                camera: c,
+                normal: n,
+                mesh_depth: &m.2,
+            })
+            .collect();
+        let targets = observed_normals(hull, &views, 1, REFINE_MIN_COS)?;
+        for &anchor in anchors {
+            let settings = RefineSettings {
+                anchor,
+                max_outward: 0.25 * footprint,
+                ..RefineSettings::default()
+            };
+            let (mesh, d) = refine_with_normals(hull, &targets, &settings)?;
+            let mean = d.iter().map(|v| *v as f64).sum::<f64>() / d.len().max(1) as f64;
+            let most = d.iter().fold(0.0f32, |a, v| a.min(*v));
+            let row = format!(
+                "| truth tilted by {sigma} deg per axis (median tilt {:.1} deg) | {anchor} | 0.25 \
+                 | {} | {mean:.4} / {most:.4} |\n",
+                percentile(&tilts, 0.5),
+                score(&mesh)?
+            );
+            println!("{}", row.trim_end());
+            md.push_str(&row);
         }
     }
     Ok(md)

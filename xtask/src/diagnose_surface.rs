@@ -57,6 +57,11 @@ pub struct DiagnoseSurfaceArgs {
     /// `Model::render_depth_crossing`) instead of the blended normal.
     #[arg(long)]
     pub front_normals: Option<f64>,
+    /// With `--refine-anchors`: also refine with the truth's normals tilted at random per
+    /// pixel, by a Gaussian of each of these standard deviations (degrees, per tangent axis;
+    /// seeded): how accurate a run's normals must be to shape the mesh.
+    #[arg(long, num_args = 0..)]
+    pub refine_noise: Vec<f32>,
 }
 
 /// Bin edges in training-pixel footprints (signed distance to the ground truth).
@@ -91,6 +96,31 @@ struct RunConfig {
 pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     if args.views == 0 {
         bail!("--views must be at least 1");
+    }
+    if !(args.concavity_gap.is_finite() && args.concavity_gap >= 0.0) {
+        bail!("--concavity-gap must be a finite number >= 0");
+    }
+    if args
+        .refine_anchors
+        .iter()
+        .any(|a| !(a.is_finite() && *a > 0.0))
+    {
+        bail!("--refine-anchors must be finite and positive");
+    }
+    if args
+        .refine_noise
+        .iter()
+        .any(|n| !(n.is_finite() && *n >= 0.0))
+    {
+        bail!("--refine-noise must be finite and >= 0");
+    }
+    if args.front_normals.is_some_and(|t| !(t > 0.0 && t < 1.0)) {
+        bail!("--front-normals must lie strictly between 0 and 1");
+    }
+    if args.concavity_gap == 0.0
+        && (!args.refine_anchors.is_empty() || args.front_normals.is_some())
+    {
+        bail!("--refine-anchors and --front-normals need --concavity-gap");
     }
     let cfg_path = args.run.join("config.json");
     let cfg: RunConfig = serde_json::from_str(
@@ -240,15 +270,7 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     md.push_str(&parts.join(", "));
     md.push('\n');
     if args.concavity_gap > 0.0 {
-        md.push_str(&crate::concavity::report(
-            &trainer,
-            &scene,
-            &gt,
-            &args.data,
-            args.concavity_gap,
-            &args.refine_anchors,
-            args.front_normals,
-        )?);
+        md.push_str(&crate::concavity::report(&trainer, &scene, &gt, args)?);
     }
     let out = args
         .out
