@@ -52,7 +52,7 @@ pub(crate) fn report(
     args: &DiagnoseSurfaceArgs,
 ) -> Result<String> {
     let (data, gap, anchors) = (&args.data, args.concavity_gap, &args.refine_anchors);
-    let (front_normals, noise) = (args.front_normals, &args.refine_noise);
+    let (front_normals, noise, blur) = (args.front_normals, &args.refine_noise, &args.refine_blur);
     let native = load_scene(
         data,
         &LoadOptions {
@@ -96,9 +96,15 @@ pub(crate) fn report(
         let c_pbr = r.c_pbr.map(host_vec);
         let g = model.render_depth(&v.camera, &v.rays)?;
         let depth = host_vec(g.depth);
-        let run_normal = match front_normals {
-            Some(t) => host_vec(model.render_depth_crossing(&v.camera, &v.rays, t)?.normal),
-            None => host_vec(g.normal),
+        let front = match front_normals {
+            Some(t) => Some(model.render_depth_crossing(&v.camera, &v.rays, t)?),
+            None => None,
+        };
+        let run_normal = match (&front, args.depth_normals) {
+            (Some(f), false) => host_vec(f.normal.clone()),
+            (Some(f), true) => depth_normals(&data.camera, &host_vec(f.depth.clone())),
+            (None, false) => host_vec(g.normal.clone()),
+            (None, true) => depth_normals(&data.camera, &depth),
         };
         let fx = data.camera.fx;
         let on = |p: usize| mask[p] > 0.5 && truth[p] > 0.0 && hull[p] > 0.0;
@@ -238,7 +244,7 @@ pub(crate) fn report(
             &alone.mesh,
             &kept_maps,
             anchors,
-            noise,
+            (noise, blur),
         )?);
     }
     Ok(md)
@@ -257,7 +263,7 @@ fn refine_rows(
     hull: &gtsr_data::ply::TriMesh,
     maps: &[NormalMaps],
     anchors: &[f32],
-    noise: &[f32],
+    (noise, blur): (&[f32], &[usize]),
 ) -> Result<String> {
     use crate::refine::{
         FaceNormals, NormalView, RefineSettings, observed_normals, refine_with_normals,
@@ -357,7 +363,39 @@ fn refine_rows(
             }
         }
     }
-    // The truth's normals tilted at random: each pixel's normal plus a tangent Gaussian.
+    // The truth's normals altered per view: refined with each set at every anchor, a quarter
+    // footprint outward allowed.
+    let altered_rows = |label: String, normals: &[Vec<f32>], md: &mut String| -> Result<()> {
+        let views: Vec<NormalView<'_>> = cameras
+            .iter()
+            .zip(maps)
+            .zip(normals)
+            .map(|((c, m), n)| NormalView {
+                camera: c,
+                normal: n,
+                mesh_depth: &m.2,
+            })
+            .collect();
+        let targets = observed_normals(hull, &views, 1, REFINE_MIN_COS)?;
+        for &anchor in anchors {
+            let settings = RefineSettings {
+                anchor,
+                max_outward: 0.25 * footprint,
+                ..RefineSettings::default()
+            };
+            let (mesh, d) = refine_with_normals(hull, &targets, &settings)?;
+            let mean = d.iter().map(|v| *v as f64).sum::<f64>() / d.len().max(1) as f64;
+            let most = d.iter().fold(0.0f32, |a, v| a.min(*v));
+            let row = format!(
+                "| {label} | {anchor} | 0.25 | {} | {mean:.4} / {most:.4} |\n",
+                score(&mesh)?
+            );
+            println!("{}", row.trim_end());
+            md.push_str(&row);
+        }
+        Ok(())
+    };
+    // Tilted at random: each pixel's normal plus a tangent Gaussian.
     for &sigma in noise {
         let mut rng = StdRng::seed_from_u64(0x6e6f697365);
         let mut tilts = Vec::new();
@@ -384,37 +422,78 @@ fn refine_rows(
             })
             .collect();
         tilts.sort_by(f32::total_cmp);
-        let views: Vec<NormalView<'_>> = cameras
+        let label = format!(
+            "truth tilted by {sigma} deg per axis (median tilt {:.1} deg)",
+            percentile(&tilts, 0.5)
+        );
+        altered_rows(label, &noisy, &mut md)?;
+    }
+    // Blurred: each pixel's normal the mean of the covered pixels within a square window.
+    for &radius in blur {
+        let r = radius as i64;
+        let blurred: Vec<Vec<f32>> = cameras
             .iter()
             .zip(maps)
-            .zip(&noisy)
-            .map(|((c, m), n)| NormalView {
-                camera: c,
-                normal: n,
-                mesh_depth: &m.2,
+            .map(|(c, m)| {
+                let (w, h) = (c.width as i64, c.height as i64);
+                let at = |x: i64, y: i64| Vec3::from_slice(&m.1[3 * (y * w + x) as usize..][..3]);
+                (0..h)
+                    .flat_map(|y| (0..w).map(move |x| (x, y)))
+                    .flat_map(|(x, y)| {
+                        if at(x, y) == Vec3::ZERO {
+                            return [0.0; 3];
+                        }
+                        let mut sum = Vec3::ZERO;
+                        for yy in (y - r).max(0)..=(y + r).min(h - 1) {
+                            for xx in (x - r).max(0)..=(x + r).min(w - 1) {
+                                sum += at(xx, yy);
+                            }
+                        }
+                        sum.normalize_or_zero().to_array()
+                    })
+                    .collect()
             })
             .collect();
-        let targets = observed_normals(hull, &views, 1, REFINE_MIN_COS)?;
-        for &anchor in anchors {
-            let settings = RefineSettings {
-                anchor,
-                max_outward: 0.25 * footprint,
-                ..RefineSettings::default()
-            };
-            let (mesh, d) = refine_with_normals(hull, &targets, &settings)?;
-            let mean = d.iter().map(|v| *v as f64).sum::<f64>() / d.len().max(1) as f64;
-            let most = d.iter().fold(0.0f32, |a, v| a.min(*v));
-            let row = format!(
-                "| truth tilted by {sigma} deg per axis (median tilt {:.1} deg) | {anchor} | 0.25 \
-                 | {} | {mean:.4} / {most:.4} |\n",
-                percentile(&tilts, 0.5),
-                score(&mesh)?
-            );
-            println!("{}", row.trim_end());
-            md.push_str(&row);
-        }
+        let label = format!("truth blurred over {0}x{0} pixels", 2 * radius + 1);
+        altered_rows(label, &blurred, &mut md)?;
     }
     Ok(md)
+}
+
+/// Camera-space normals of a z-depth map (`0`: nothing) from central differences of the
+/// back-projected pixel centres, facing the camera; zero where a neighbour is missing.
+fn depth_normals(camera: &gtsr_data::Camera, depth: &[f32]) -> Vec<f32> {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let point = |x: usize, y: usize| -> Option<Vec3> {
+        let z = depth[y * w + x];
+        (z.is_finite() && z > 0.0).then(|| {
+            Vec3::new(
+                (x as f32 + 0.5 - camera.cx) / camera.fx * z,
+                (y as f32 + 0.5 - camera.cy) / camera.fy * z,
+                z,
+            )
+        })
+    };
+    let mut out = vec![0.0; 3 * w * h];
+    for y in 1..h.saturating_sub(1) {
+        for x in 1..w.saturating_sub(1) {
+            let (Some(c), Some(l), Some(r), Some(u), Some(d)) = (
+                point(x, y),
+                point(x - 1, y),
+                point(x + 1, y),
+                point(x, y - 1),
+                point(x, y + 1),
+            ) else {
+                continue;
+            };
+            let mut n = (r - l).cross(d - u).normalize_or_zero();
+            if n.dot(c) > 0.0 {
+                n = -n;
+            }
+            out[3 * (y * w + x)..][..3].copy_from_slice(&n.to_array());
+        }
+    }
+    out
 }
 
 /// Least cosine between a face and the view direction for a view's normal to count in the

@@ -57,11 +57,19 @@ pub struct DiagnoseSurfaceArgs {
     /// `Model::render_depth_crossing`) instead of the blended normal.
     #[arg(long)]
     pub front_normals: Option<f64>,
+    /// With `--concavity-gap`: take the run's normals from the gradient of its depth map (the
+    /// blended depth, or with `--front-normals` the front's) instead of the rendered normal.
+    #[arg(long)]
+    pub depth_normals: bool,
     /// With `--refine-anchors`: also refine with the truth's normals tilted at random per
     /// pixel, by a Gaussian of each of these standard deviations (degrees, per tangent axis;
     /// seeded): how accurate a run's normals must be to shape the mesh.
     #[arg(long, num_args = 0..)]
     pub refine_noise: Vec<f32>,
+    /// With `--refine-anchors`: also refine with the truth's normal maps blurred over a
+    /// square window of each of these radii (pixels): what a smooth normal costs.
+    #[arg(long, num_args = 0..)]
+    pub refine_blur: Vec<usize>,
 }
 
 /// Bin edges in training-pixel footprints (signed distance to the ground truth).
@@ -118,9 +126,9 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
         bail!("--front-normals must lie strictly between 0 and 1");
     }
     if args.concavity_gap == 0.0
-        && (!args.refine_anchors.is_empty() || args.front_normals.is_some())
+        && (!args.refine_anchors.is_empty() || args.front_normals.is_some() || args.depth_normals)
     {
-        bail!("--refine-anchors and --front-normals need --concavity-gap");
+        bail!("--refine-anchors, --front-normals and --depth-normals need --concavity-gap");
     }
     let cfg_path = args.run.join("config.json");
     let cfg: RunConfig = serde_json::from_str(
