@@ -120,15 +120,15 @@ pub(crate) fn ground_truth(scene: &gtsr_data::Scene, scene_dir: &Path) -> Result
     Ok(gtsr_data::ply::read_ply(&gt_path)?)
 }
 
-/// The masks alone at the dataset's own resolution ([`masks_mesh`]), evaluated (with the
-/// hull-blind split against themselves) and written to `out/mesh.ply`.
-fn masks_row(scene_dir: &Path, name: &str, out: &Path) -> Result<ReportRow> {
-    let t0 = Instant::now();
+/// The scene at its own resolution and its masks' mesh ([`masks_mesh`]); errors unless every
+/// training view has a mask and something lies inside all of them.
+pub(crate) fn native_masks_mesh(scene_dir: &Path) -> Result<(gtsr_data::Scene, TriMesh)> {
     let opts = LoadOptions {
         downscale: Downscale::None,
         ..LoadOptions::default()
     };
-    let scene = load_scene(scene_dir, &opts)?;
+    let scene = load_scene(scene_dir, &opts)
+        .with_context(|| format!("loading {} at its own size", scene_dir.display()))?;
     let views: Vec<_> = scene
         .train
         .iter()
@@ -142,6 +142,14 @@ fn masks_row(scene_dir: &Path, name: &str, out: &Path) -> Result<ReportRow> {
     }
     let mesh = masks_mesh(&views, None)?
         .with_context(|| format!("{}: the masks are empty", scene_dir.display()))?;
+    Ok((scene, mesh))
+}
+
+/// The masks alone at the dataset's own resolution ([`masks_mesh`]), evaluated (with the
+/// hull-blind split against themselves) and written to `out/mesh.ply`.
+fn masks_row(scene_dir: &Path, name: &str, out: &Path) -> Result<ReportRow> {
+    let t0 = Instant::now();
+    let (scene, mesh) = native_masks_mesh(scene_dir)?;
     let seconds = t0.elapsed().as_secs_f64();
     let gt = ground_truth(&scene, scene_dir)?;
     let cameras: Vec<_> = scene.train.iter().map(|v| v.camera).collect();
@@ -151,7 +159,7 @@ fn masks_row(scene_dir: &Path, name: &str, out: &Path) -> Result<ReportRow> {
     Ok(ReportRow {
         method: format!(
             "masks alone ({}x{} masks, sub-voxel)",
-            views[0].0.width, views[0].0.height
+            cameras[0].width, cameras[0].height
         ),
         scene: name.into(),
         chamfer: Some(m.chamfer),

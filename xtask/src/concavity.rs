@@ -3,9 +3,8 @@
 //! those normals could refine the masks' mesh ([`crate::refine`]). For the development scenes
 //! only: the ground truth diagnoses, it never trains.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use glam::Vec3;
-use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_eval::tsdf::median_pixel_footprint;
 use gtsr_model::gaussians::host_vec;
 
@@ -37,7 +36,7 @@ struct ClassSums {
 }
 
 /// The concavity report of `diagnose-surface --concavity-gap`: on every training view,
-/// the masks' mesh (native masks, [`gtsr_eval::MasksAlone`]) and the ground truth are ray cast
+/// the masks' mesh (native masks, [`crate::bench_recon::native_masks_mesh`]) and the ground truth are ray cast
 /// through each pixel; a pixel looks into a concavity the masks cannot see when the truth lies
 /// more than `gap` footprints (`z / fx`) behind the masks' depth there. Those pixels are
 /// compared with their 8-neighbours on the flush surface and with the rest of the object: if
@@ -53,27 +52,8 @@ pub(crate) fn report(
 ) -> Result<String> {
     let (data, gap, anchors) = (&args.data, args.concavity_gap, &args.refine_anchors);
     let (front_normals, noise, blur) = (args.front_normals, &args.refine_noise, &args.refine_blur);
-    let native = load_scene(
-        data,
-        &LoadOptions {
-            downscale: Downscale::None,
-            ..LoadOptions::default()
-        },
-    )
-    .with_context(|| format!("loading {} at its own size", data.display()))?;
-    let masks: Vec<(gtsr_data::Camera, Vec<f32>)> = native
-        .train
-        .iter()
-        .filter_map(|v| v.mask.clone().map(|m| (v.camera, m)))
-        .collect();
-    if masks.len() != native.train.len() {
-        bail!(
-            "{}: the concavity report needs a mask on every training view",
-            data.display()
-        );
-    }
-    let alone = gtsr_eval::MasksAlone::new(masks)?.context("the masks are empty")?;
-    let hull_caster = gtsr_eval::MeshRaycaster::new(&alone.mesh, "masks' mesh")?;
+    let (_, hull_mesh) = crate::bench_recon::native_masks_mesh(data)?;
+    let hull_caster = gtsr_eval::MeshRaycaster::new(&hull_mesh, "masks' mesh")?;
     let gt_caster = gtsr_eval::MeshRaycaster::new(gt, "ground-truth mesh")?;
     let model = trainer.model().detached();
     let last = trainer.steps_done().saturating_sub(1);
@@ -100,25 +80,15 @@ pub(crate) fn report(
             Some(t) => Some(model.render_depth_crossing(&v.camera, &v.rays, t)?),
             None => None,
         };
-        let run_normal = match (&front, args.depth_normals) {
-            (Some(f), false) => host_vec(f.normal.clone()),
-            (Some(f), true) => depth_normals(&data.camera, &host_vec(f.depth.clone())),
-            (None, false) => host_vec(g.normal.clone()),
+        let run_normal = match (front, args.depth_normals) {
+            (Some(f), false) => host_vec(f.normal),
+            (Some(f), true) => depth_normals(&data.camera, &host_vec(f.depth)),
+            (None, false) => host_vec(g.normal),
             (None, true) => depth_normals(&data.camera, &depth),
         };
         let fx = data.camera.fx;
         let on = |p: usize| mask[p] > 0.5 && truth[p] > 0.0 && hull[p] > 0.0;
         let gap_fp = |p: usize| (truth[p] - hull[p]) * fx / hull[p];
-        if !anchors.is_empty() {
-            let flat =
-                |n: &[Vec3]| -> Vec<f32> { n.iter().flat_map(|n| [n.x, n.y, n.z]).collect() };
-            kept_maps.push((
-                run_normal.clone(),
-                flat(&truth_maps.normal),
-                hull.clone(),
-                flat(&hull_maps.normal),
-            ));
-        }
         for p in (0..w * h).filter(|p| on(*p)) {
             let b = NORMAL_BINS.iter().take_while(|e| gap_fp(p) >= **e).count();
             let t = truth_maps.normal[p];
@@ -181,6 +151,15 @@ pub(crate) fn report(
             s.model_beyond += usize::from(model_gap > gap);
             s.truth_gap += gap_fp(p) as f64;
         }
+        if !anchors.is_empty() {
+            let flat = |n: Vec<Vec3>| -> Vec<f32> { n.iter().flat_map(|n| n.to_array()).collect() };
+            kept_maps.push((
+                run_normal,
+                flat(truth_maps.normal),
+                hull_maps.depth,
+                flat(hull_maps.normal),
+            ));
+        }
     }
     let mut md = format!(
         "\n## Pixels that look into a concavity the masks cannot see\n\nEvery training view \
@@ -225,13 +204,8 @@ pub(crate) fn report(
             b if b == NORMAL_BINS.len() => format!(">= {}", NORMAL_BINS[b - 1]),
             b => format!("[{}, {})", NORMAL_BINS[b - 1], NORMAL_BINS[b]),
         };
-        let stats = |v: &mut Vec<f32>| -> (f32, f64) {
-            v.sort_by(f32::total_cmp);
-            let mean = v.iter().map(|x| *x as f64).sum::<f64>() / v.len() as f64;
-            (percentile(v, 0.5), mean)
-        };
-        let (hm, ha) = stats(hull);
-        let (rm, ra) = stats(run);
+        let (hm, ha) = median_mean(hull);
+        let (rm, ra) = median_mean(run);
         md.push_str(&format!(
             "| {label} | {} | {hm:.1} / {ha:.1} | {rm:.1} / {ra:.1} |\n",
             hull.len()
@@ -241,7 +215,7 @@ pub(crate) fn report(
         md.push_str(&refine_rows(
             scene,
             gt,
-            &alone.mesh,
+            &hull_mesh,
             &kept_maps,
             anchors,
             (noise, blur),
@@ -280,17 +254,38 @@ fn refine_rows(
             1e3 * seen.hull_blind.map_or(f64::NAN, |b| b.blind)
         ))
     };
-    let observed = |normal: fn(&NormalMaps) -> &[f32]| -> Result<FaceNormals> {
+    // The faces' observed normals from one normal map per view.
+    let observe = |normals: Vec<&[f32]>| -> Result<FaceNormals> {
         let views: Vec<NormalView<'_>> = cameras
             .iter()
             .zip(maps)
-            .map(|(c, m)| NormalView {
+            .zip(normals)
+            .map(|((c, m), n)| NormalView {
                 camera: c,
-                normal: normal(m),
+                normal: n,
                 mesh_depth: &m.2,
             })
             .collect();
         observed_normals(hull, &views, 1, REFINE_MIN_COS)
+    };
+    let observed =
+        |pick: fn(&NormalMaps) -> &[f32]| observe(maps.iter().map(pick).collect::<Vec<_>>());
+    // One refinement, scored, as a table row (also printed).
+    let row = |label: &str, targets: &FaceNormals, anchor: f32, outward: f32| -> Result<String> {
+        let settings = RefineSettings {
+            anchor,
+            max_outward: outward * footprint,
+            ..RefineSettings::default()
+        };
+        let (mesh, d) = refine_with_normals(hull, targets, &settings)?;
+        let mean = d.iter().map(|v| *v as f64).sum::<f64>() / d.len().max(1) as f64;
+        let most = d.iter().fold(0.0f32, |a, v| a.min(*v));
+        let row = format!(
+            "| {label} | {anchor} | {outward} | {} | {mean:.4} / {most:.4} |\n",
+            score(&mesh)?
+        );
+        println!("{}", row.trim_end());
+        Ok(row)
     };
     let run = observed(|m| &m.0)?;
     let truth = observed(|m| &m.1)?;
@@ -308,9 +303,7 @@ fn refine_rows(
                     .to_degrees()
             })
             .collect();
-        e.sort_by(f32::total_cmp);
-        let mean = e.iter().map(|v| *v as f64).sum::<f64>() / e.len().max(1) as f64;
-        (percentile(&e, 0.5), mean)
+        median_mean(&mut e)
     };
     let ((rm, ra), (om, oa)) = (face_error(&run), face_error(&own));
     let mut departing = own.clone();
@@ -329,69 +322,35 @@ fn refine_rows(
     ];
     let mut md = String::from(
         "\nThe masks' mesh refined by the observed normals (`xtask/src/refine.rs`; chamfer, \
-         accuracy, completeness, hull-blind, x1e3; moves in scene units):\n\n| normals | \
-         anchor | outward (footprints) | chamfer | accuracy | completeness | hull-blind | mean \
-         / largest inward move |\n|---|---:|---:|---:|---:|---:|---:|---:|\n",
+         accuracy, completeness, hull-blind, x1e3; moves in scene units):\n\n",
     );
-    md.push_str(&format!(
-        "| none (masks alone) | | | {} | |\n",
-        score(hull)?
-    ));
     let errors = format!(
         "Per face, the views averaged, against the truth's (degrees, median / mean): the run's \
          normals {rm:.1} / {ra:.1}, the masks' own {om:.1} / {oa:.1}.\n\n"
     );
     println!("{}", errors.trim_end());
-    md.insert_str(md.find("| normals |").unwrap_or(md.len()), &errors);
+    md.push_str(&errors);
+    md.push_str(
+        "| normals | anchor | outward (footprints) | chamfer | accuracy | completeness | \
+         hull-blind | mean / largest inward move |\n|---|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    md.push_str(&format!(
+        "| none (masks alone) | | | {} | |\n",
+        score(hull)?
+    ));
     for outward in [0.0f32, 0.25] {
         for (label, targets) in sources {
             for &anchor in anchors {
-                let settings = RefineSettings {
-                    anchor,
-                    max_outward: outward * footprint,
-                    ..RefineSettings::default()
-                };
-                let (mesh, d) = refine_with_normals(hull, targets, &settings)?;
-                let mean = d.iter().map(|v| *v as f64).sum::<f64>() / d.len().max(1) as f64;
-                let most = d.iter().fold(0.0f32, |a, v| a.min(*v));
-                let row = format!(
-                    "| {label} | {anchor} | {outward} | {} | {mean:.4} / {most:.4} |\n",
-                    score(&mesh)?
-                );
-                println!("{}", row.trim_end());
-                md.push_str(&row);
+                md.push_str(&row(label, targets, anchor, outward)?);
             }
         }
     }
     // The truth's normals altered per view: refined with each set at every anchor, a quarter
     // footprint outward allowed.
     let altered_rows = |label: String, normals: &[Vec<f32>], md: &mut String| -> Result<()> {
-        let views: Vec<NormalView<'_>> = cameras
-            .iter()
-            .zip(maps)
-            .zip(normals)
-            .map(|((c, m), n)| NormalView {
-                camera: c,
-                normal: n,
-                mesh_depth: &m.2,
-            })
-            .collect();
-        let targets = observed_normals(hull, &views, 1, REFINE_MIN_COS)?;
+        let targets = observe(normals.iter().map(Vec::as_slice).collect())?;
         for &anchor in anchors {
-            let settings = RefineSettings {
-                anchor,
-                max_outward: 0.25 * footprint,
-                ..RefineSettings::default()
-            };
-            let (mesh, d) = refine_with_normals(hull, &targets, &settings)?;
-            let mean = d.iter().map(|v| *v as f64).sum::<f64>() / d.len().max(1) as f64;
-            let most = d.iter().fold(0.0f32, |a, v| a.min(*v));
-            let row = format!(
-                "| {label} | {anchor} | 0.25 | {} | {mean:.4} / {most:.4} |\n",
-                score(&mesh)?
-            );
-            println!("{}", row.trim_end());
-            md.push_str(&row);
+            md.push_str(&row(&label, &targets, anchor, 0.25)?);
         }
         Ok(())
     };
@@ -458,6 +417,13 @@ fn refine_rows(
         altered_rows(label, &blurred, &mut md)?;
     }
     Ok(md)
+}
+
+/// The median and the mean of `v` (sorted in place); NaN for an empty `v`.
+fn median_mean(v: &mut [f32]) -> (f32, f64) {
+    v.sort_by(f32::total_cmp);
+    let mean = v.iter().map(|x| *x as f64).sum::<f64>() / v.len() as f64;
+    (percentile(v, 0.5), mean)
 }
 
 /// Camera-space normals of a z-depth map (`0`: nothing) from central differences of the

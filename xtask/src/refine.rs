@@ -282,6 +282,7 @@ pub fn refine_with_normals(
             }
         }
     };
+    let all = vec![true; nv];
     let mut free = vec![true; nv];
     let mut x = vec![0.0f64; nv];
     for _ in 0..settings.rounds.max(1) {
@@ -322,7 +323,6 @@ pub fn refine_with_normals(
             }
         }
         // Hold the vertices pushed outward; release the held ones the energy pulls inward.
-        let all = vec![true; nv];
         apply(&x, &mut ax, &all);
         let mut changed = false;
         for i in 0..nv {
