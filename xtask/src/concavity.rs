@@ -59,7 +59,7 @@ pub(crate) fn report(
     let last = trainer.steps_done().saturating_sub(1);
     let opts = trainer.render_options(last, false);
     let mut sums = [ClassSums::default(); 3];
-    let mut kept_maps: Vec<NormalMaps> = Vec::new();
+    let mut kept_maps: Vec<ViewMaps> = Vec::new();
     let mut normal_bins: Vec<(Vec<f32>, Vec<f32>)> =
         vec![Default::default(); NORMAL_BINS.len() + 1];
     for (v, data) in trainer.views().iter().zip(&scene.train) {
@@ -76,6 +76,12 @@ pub(crate) fn report(
         let c_pbr = r.c_pbr.map(host_vec);
         let g = model.render_depth(&v.camera, &v.rays)?;
         let depth = host_vec(g.depth);
+        let crossing_depth = match args.offset_crossing {
+            Some(t) if !args.refine_depth.is_empty() => Some(host_vec(
+                model.render_depth_crossing(&v.camera, &v.rays, t)?.depth,
+            )),
+            _ => None,
+        };
         let front = match front_normals {
             Some(t) => Some(model.render_depth_crossing(&v.camera, &v.rays, t)?),
             None => None,
@@ -153,12 +159,19 @@ pub(crate) fn report(
         }
         if !anchors.is_empty() {
             let flat = |n: Vec<Vec3>| -> Vec<f32> { n.iter().flat_map(|n| n.to_array()).collect() };
-            kept_maps.push((
+            kept_maps.push(ViewMaps {
                 run_normal,
-                flat(truth_maps.normal),
-                hull_maps.depth,
-                flat(hull_maps.normal),
-            ));
+                truth_normal: flat(truth_maps.normal),
+                hull_depth: hull_maps.depth,
+                hull_normal: flat(hull_maps.normal),
+                run_depth: if args.refine_depth.is_empty() {
+                    Vec::new()
+                } else {
+                    depth.clone()
+                },
+                crossing_depth,
+                truth_depth: truth_maps.depth,
+            });
         }
     }
     let mut md = format!(
@@ -219,13 +232,24 @@ pub(crate) fn report(
             &kept_maps,
             anchors,
             (noise, blur),
+            (&args.refine_depth, &args.offset_thresholds),
         )?);
     }
     Ok(md)
 }
 
-/// Per training view: the run's normal map, the truth's, the masks' mesh depth and its normals.
-type NormalMaps = (Vec<f32>, Vec<f32>, Vec<f32>, Vec<f32>);
+/// Per training view, what the refinement rows read (normals 3 per pixel, camera space;
+/// z-depths).
+struct ViewMaps {
+    run_normal: Vec<f32>,
+    truth_normal: Vec<f32>,
+    hull_depth: Vec<f32>,
+    hull_normal: Vec<f32>,
+    /// Empty without `--refine-depth`.
+    run_depth: Vec<f32>,
+    crossing_depth: Option<Vec<f32>>,
+    truth_depth: Vec<f32>,
+}
 
 /// The refinement rows of `--refine-anchors`: the masks' mesh refined
 /// (`refine.rs`) by the normals of the run, of the truth, of the masks' mesh itself (what the
@@ -235,12 +259,13 @@ fn refine_rows(
     scene: &gtsr_data::Scene,
     gt: &gtsr_data::ply::TriMesh,
     hull: &gtsr_data::ply::TriMesh,
-    maps: &[NormalMaps],
+    maps: &[ViewMaps],
     anchors: &[f32],
     (noise, blur): (&[f32], &[usize]),
+    (depth_lengths, offset_thresholds): (&[f32], &[f32]),
 ) -> Result<String> {
     use crate::refine::{
-        FaceNormals, NormalView, RefineSettings, observed_normals, refine_with_normals,
+        FaceNormals, NormalView, RefineSettings, observed_normals, refine, refine_with_normals,
     };
     let cameras: Vec<gtsr_data::Camera> = scene.train.iter().map(|v| v.camera).collect();
     let footprint = median_pixel_footprint(cameras.iter(), Vec3::ZERO);
@@ -263,13 +288,13 @@ fn refine_rows(
             .map(|((c, m), n)| NormalView {
                 camera: c,
                 normal: n,
-                mesh_depth: &m.2,
+                mesh_depth: &m.hull_depth,
             })
             .collect();
         observed_normals(hull, &views, 1, REFINE_MIN_COS)
     };
     let observed =
-        |pick: fn(&NormalMaps) -> &[f32]| observe(maps.iter().map(pick).collect::<Vec<_>>());
+        |pick: fn(&ViewMaps) -> &[f32]| observe(maps.iter().map(pick).collect::<Vec<_>>());
     // One refinement, scored, as a table row (also printed).
     let row = |label: &str, targets: &FaceNormals, anchor: f32, outward: f32| -> Result<String> {
         let settings = RefineSettings {
@@ -287,9 +312,9 @@ fn refine_rows(
         println!("{}", row.trim_end());
         Ok(row)
     };
-    let run = observed(|m| &m.0)?;
-    let truth = observed(|m| &m.1)?;
-    let own = observed(|m| &m.3)?;
+    let run = observed(|m| &m.run_normal)?;
+    let truth = observed(|m| &m.truth_normal)?;
+    let own = observed(|m| &m.hull_normal)?;
     // Per face, after the views are averaged: how far the run's and the masks' own normals
     // lie from the truth's.
     let face_error = |x: &FaceNormals| -> (f32, f64) {
@@ -361,7 +386,8 @@ fn refine_rows(
         let noisy: Vec<Vec<f32>> = maps
             .iter()
             .map(|m| {
-                m.1.chunks_exact(3)
+                m.truth_normal
+                    .chunks_exact(3)
                     .flat_map(|c| {
                         let n = Vec3::from_slice(c);
                         if n == Vec3::ZERO {
@@ -395,7 +421,9 @@ fn refine_rows(
             .zip(maps)
             .map(|(c, m)| {
                 let (w, h) = (c.width as i64, c.height as i64);
-                let at = |x: i64, y: i64| Vec3::from_slice(&m.1[3 * (y * w + x) as usize..][..3]);
+                let at = |x: i64, y: i64| {
+                    Vec3::from_slice(&m.truth_normal[3 * (y * w + x) as usize..][..3])
+                };
                 (0..h)
                     .flat_map(|y| (0..w).map(move |x| (x, y)))
                     .flat_map(|(x, y)| {
@@ -415,6 +443,201 @@ fn refine_rows(
             .collect();
         let label = format!("truth blurred over {0}x{0} pixels", 2 * radius + 1);
         altered_rows(label, &blurred, &mut md)?;
+    }
+    if !depth_lengths.is_empty() {
+        md.push_str(&depth_rows(
+            &cameras,
+            maps,
+            hull,
+            footprint,
+            &own,
+            (depth_lengths, offset_thresholds, anchors),
+            &|label: &str,
+              normals: &FaceNormals,
+              depth: &crate::refine::DepthTargets,
+              anchor: f32| {
+                let settings = RefineSettings {
+                    anchor,
+                    max_outward: 0.25 * footprint,
+                    ..RefineSettings::default()
+                };
+                let (mesh, d) = refine(hull, normals, Some(depth), &settings)?;
+                let mean = d.iter().map(|v| *v as f64).sum::<f64>() / d.len().max(1) as f64;
+                let row = format!("| {label} | {anchor} | {} | {mean:.4} |\n", score(&mesh)?);
+                println!("{}", row.trim_end());
+                Ok(row)
+            },
+        )?);
+    }
+    Ok(md)
+}
+
+/// One scored refinement with a depth term, as a table row.
+type DepthRow<'a> = dyn Fn(&str, &crate::refine::FaceNormals, &crate::refine::DepthTargets, f32) -> Result<String>
+    + 'a;
+
+/// The rows of `--refine-depth`: per face, the offsets the depth maps observe against the
+/// masks' mesh (the truth's, the run's blended and its front), how well the run's track the
+/// truth's, and the masks' mesh refined with each as a depth term (normals: the masks' own).
+fn depth_rows(
+    cameras: &[gtsr_data::Camera],
+    maps: &[ViewMaps],
+    hull: &gtsr_data::ply::TriMesh,
+    footprint: f32,
+    own: &crate::refine::FaceNormals,
+    (lengths, thresholds, anchors): (&[f32], &[f32], &[f32]),
+    row: &DepthRow<'_>,
+) -> Result<String> {
+    use crate::refine::{DepthTargets, DepthView, FaceOffsets, observed_offsets};
+    let offsets = |pick: &dyn Fn(&ViewMaps) -> Option<&[f32]>| -> Result<Option<FaceOffsets>> {
+        let mut views = Vec::new();
+        for (c, m) in cameras.iter().zip(maps) {
+            let Some(depth) = pick(m) else {
+                return Ok(None);
+            };
+            views.push(DepthView {
+                camera: c,
+                depth,
+                mesh_depth: &m.hull_depth,
+            });
+        }
+        observed_offsets(hull, &views, REFINE_MIN_COS).map(Some)
+    };
+    let truth = offsets(&|m| Some(&m.truth_depth))?.context("truth offsets")?;
+    let blended = offsets(&|m| Some(&m.run_depth))?.context("run offsets")?;
+    let crossing = offsets(&|m| m.crossing_depth.as_deref())?;
+    // A face counts with at least this many views; its offset less the median over such faces.
+    const MIN_VIEWS: u32 = 3;
+    let targets = |o: &FaceOffsets, length: f32| -> (DepthTargets, f32) {
+        let mut kept: Vec<f32> = (0..o.offset.len())
+            .filter(|f| o.views[*f] >= MIN_VIEWS)
+            .map(|f| o.offset[f])
+            .collect();
+        let bias = if kept.is_empty() {
+            0.0
+        } else {
+            median_mean(&mut kept).0
+        };
+        let t = DepthTargets {
+            offset: o.offset.iter().map(|v| v - bias).collect(),
+            weight: o
+                .views
+                .iter()
+                .map(|n| if *n >= MIN_VIEWS { 1.0 } else { 0.0 })
+                .collect(),
+            length,
+        };
+        (t, bias)
+    };
+    let mut md = format!(
+        "\nPer face of the masks' mesh (seen in at least {MIN_VIEWS} views), the offset the depth \
+         maps observe along the face normal (footprints of {footprint:.4}, negative: inside), \
+         each less its median over the faces (the bias), by the truth's offset; median / mean, \
+         and the median distance from the truth's:\n\n"
+    );
+    // Where both the blend and the front say the face lies inside: the less inward of the two.
+    let both = crossing.as_ref().map(|c| FaceOffsets {
+        offset: (targets(c, 1.0).0.offset.iter())
+            .zip(&targets(&blended, 1.0).0.offset)
+            .map(|(a, b)| a.max(*b))
+            .collect(),
+        views: (c.views.iter().zip(&blended.views))
+            .map(|(a, b)| *a.min(b))
+            .collect(),
+    });
+    let mut sources: Vec<(&str, &FaceOffsets)> = vec![("run, blended", &blended)];
+    if let (Some(c), Some(b)) = (&crossing, &both) {
+        sources.push(("run, front", c));
+        sources.push(("run, the less inward of both", b));
+    }
+    md.push_str("| truth's offset (fp) | faces |");
+    for (name, _) in &sources {
+        md.push_str(&format!(" {name} | distance | below -0.5 / -1 fp |"));
+    }
+    md.push_str("\n|---|---:|");
+    for _ in &sources {
+        md.push_str("---:|---:|---:|");
+    }
+    md.push('\n');
+    const EDGES: [f32; 5] = [-3.0, -1.0, -0.5, -0.25, 0.25];
+    let (truth_t, truth_bias) = targets(&truth, 1.0);
+    let debiased: Vec<(DepthTargets, f32)> = sources.iter().map(|(_, o)| targets(o, 1.0)).collect();
+    for b in 0..=EDGES.len() {
+        let in_bin = |f: usize| {
+            let t = truth_t.offset[f] / footprint;
+            truth_t.weight[f] > 0.0 && EDGES.iter().take_while(|e| t >= **e).count() == b
+        };
+        let faces: Vec<usize> = (0..truth_t.offset.len()).filter(|f| in_bin(*f)).collect();
+        if faces.is_empty() {
+            continue;
+        }
+        let label = match b {
+            0 => format!("< {}", EDGES[0]),
+            b if b == EDGES.len() => format!(">= {}", EDGES[b - 1]),
+            b => format!("[{}, {})", EDGES[b - 1], EDGES[b]),
+        };
+        md.push_str(&format!("| {label} | {} |", faces.len()));
+        for (t, _) in &debiased {
+            let mut v: Vec<f32> = faces
+                .iter()
+                .filter(|f| t.weight[**f] > 0.0)
+                .map(|f| t.offset[*f] / footprint)
+                .collect();
+            let mut dist: Vec<f32> = faces
+                .iter()
+                .filter(|f| t.weight[**f] > 0.0)
+                .map(|f| ((t.offset[*f] - truth_t.offset[*f]) / footprint).abs())
+                .collect();
+            let share = |x: f32| {
+                100.0 * v.iter().filter(|o| **o < x).count() as f64 / v.len().max(1) as f64
+            };
+            let (s5, s1) = (share(-0.5), share(-1.0));
+            let (m, a) = median_mean(&mut v);
+            let (dm, _) = median_mean(&mut dist);
+            md.push_str(&format!(
+                " {m:+.2} / {a:+.2} | {dm:.2} | {s5:.1} / {s1:.1} % |"
+            ));
+        }
+        md.push('\n');
+    }
+    md.push_str(&format!(
+        "\nBiases (median offset over the faces, footprints): truth {:+.3}",
+        truth_bias / footprint
+    ));
+    for ((name, _), (_, bias)) in sources.iter().zip(&debiased) {
+        md.push_str(&format!(", {name} {:+.3}", bias / footprint));
+    }
+    md.push_str(
+        ".\n\nThe masks' mesh refined with a depth term (normals as labelled; a quarter \
+         footprint outward; chamfer, accuracy, completeness, hull-blind x1e3; mean move):\n\n\
+         | depth / normals / length | anchor | chamfer | accuracy | completeness | hull-blind \
+         | mean move |\n|---|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for &length in lengths {
+        let mut runs: Vec<(String, DepthTargets, &crate::refine::FaceNormals)> = vec![(
+            format!("truth / masks' own / {length}"),
+            targets(&truth, length).0,
+            own,
+        )];
+        for (name, o) in &sources {
+            for &tau in thresholds {
+                // Inward only, and shrunk by the threshold: offsets within it say "stay".
+                let mut t = targets(o, length).0;
+                for v in t.offset.iter_mut() {
+                    *v = (*v + tau * footprint).min(0.0);
+                }
+                runs.push((
+                    format!("{name}, threshold {tau} fp / masks' own / {length}"),
+                    t,
+                    own,
+                ));
+            }
+        }
+        for (label, t, normals) in &runs {
+            for &anchor in anchors {
+                md.push_str(&row(label, normals, t, anchor)?);
+            }
+        }
     }
     Ok(md)
 }

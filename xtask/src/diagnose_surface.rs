@@ -70,6 +70,21 @@ pub struct DiagnoseSurfaceArgs {
     /// square window of each of these radii (pixels): what a smooth normal costs.
     #[arg(long, num_args = 0..)]
     pub refine_blur: Vec<usize>,
+    /// With `--refine-anchors`: also refine with a depth term, each face pulled towards the
+    /// offset the views' depth maps observe (the median over the views, less the median over
+    /// the faces: the depth's own bias against the masks), over each of these lengths (scene
+    /// units; smaller trusts the depth more); from the truth's depth, the run's blended
+    /// depth and, with `--offset-crossing`, its front.
+    #[arg(long, num_args = 0..)]
+    pub refine_depth: Vec<f32>,
+    /// With `--refine-depth`: also take the run's depth where its transmittance first falls
+    /// to this threshold (`Model::render_depth_crossing`).
+    #[arg(long)]
+    pub offset_crossing: Option<f64>,
+    /// With `--refine-depth`: the run's offsets are trusted only beyond each of these
+    /// thresholds (footprints): inward offsets are shrunk by it, the rest ask the face to stay.
+    #[arg(long, num_args = 0.., default_values_t = [0.0])]
+    pub offset_thresholds: Vec<f32>,
 }
 
 /// Bin edges in training-pixel footprints (signed distance to the ground truth).
@@ -121,6 +136,28 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
         .any(|n| !(n.is_finite() && *n >= 0.0))
     {
         bail!("--refine-noise must be finite and >= 0");
+    }
+    if args
+        .refine_depth
+        .iter()
+        .any(|l| !(l.is_finite() && *l > 0.0))
+    {
+        bail!("--refine-depth lengths must be finite and positive");
+    }
+    if args
+        .offset_thresholds
+        .iter()
+        .any(|t| !(t.is_finite() && *t >= 0.0))
+    {
+        bail!("--offset-thresholds must be finite and >= 0");
+    }
+    if args.offset_crossing.is_some_and(|t| !(t > 0.0 && t < 1.0)) {
+        bail!("--offset-crossing must lie strictly between 0 and 1");
+    }
+    if (!args.refine_depth.is_empty() || args.offset_crossing.is_some())
+        && args.refine_anchors.is_empty()
+    {
+        bail!("--refine-depth and --offset-crossing need --refine-anchors");
     }
     if args.front_normals.is_some_and(|t| !(t > 0.0 && t < 1.0)) {
         bail!("--front-normals must lie strictly between 0 and 1");

@@ -101,38 +101,8 @@ pub fn observed_normals(
     let mut wsum = vec![0.0f32; nf];
     let mut count = vec![0usize; nf];
     for v in views {
-        let cam = v.camera;
-        let to_world = cam.world_to_camera.inverse();
-        let eye = to_world.transform_point3(Vec3::ZERO);
-        let (w, h) = (cam.width as usize, cam.height as usize);
-        for (f, t) in mesh.triangles.iter().enumerate() {
-            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-            let cross = (b - a).cross(c - a);
-            let len = cross.length();
-            if len <= 0.0 || !len.is_finite() {
-                continue;
-            }
-            let nrm = cross / len;
-            let centroid = (a + b + c) / 3.0;
-            let to_eye = (eye - centroid).normalize_or_zero();
-            let cos = nrm.dot(to_eye);
-            if cos < min_cos {
-                continue;
-            }
-            let q = cam.world_to_camera.transform_point3(centroid);
-            if q.z <= 0.0 {
-                continue;
-            }
-            let u = cam.fx * q.x / q.z + cam.cx;
-            let vv = cam.fy * q.y / q.z + cam.cy;
-            if !(u >= 0.0 && vv >= 0.0 && (u as usize) < w && (vv as usize) < h) {
-                continue;
-            }
-            let p = vv as usize * w + u as usize;
-            let z = v.mesh_depth[p];
-            if !(z > 0.0 && (q.z - z).abs() <= 0.5 * q.z / cam.fx) {
-                continue;
-            }
+        let to_world = v.camera.world_to_camera.inverse();
+        for (f, p, cos) in visible_faces(mesh, v.camera, v.mesh_depth, min_cos) {
             let nc = Vec3::new(v.normal[3 * p], v.normal[3 * p + 1], v.normal[3 * p + 2]);
             let l = nc.length();
             if !(l.is_finite() && l > 0.0) {
@@ -154,6 +124,121 @@ pub fn observed_normals(
             out.normal[f] = m.normalize_or_zero();
             out.weight[f] = m.length().min(1.0);
         }
+    }
+    Ok(out)
+}
+
+/// The faces of `mesh` one view observes: those facing the camera (cosine at least `min_cos`)
+/// whose centroid lies within half a pixel footprint of the mesh's own first hit (`mesh_depth`)
+/// at the pixel it projects to; as (face, pixel, cosine).
+fn visible_faces(
+    mesh: &TriMesh,
+    cam: &Camera,
+    mesh_depth: &[f32],
+    min_cos: f32,
+) -> Vec<(usize, usize, f32)> {
+    let eye = cam.world_to_camera.inverse().transform_point3(Vec3::ZERO);
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let mut out = Vec::new();
+    for (f, t) in mesh.triangles.iter().enumerate() {
+        let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+        let cross = (b - a).cross(c - a);
+        let len = cross.length();
+        if len <= 0.0 || !len.is_finite() {
+            continue;
+        }
+        let centroid = (a + b + c) / 3.0;
+        let cos = (cross / len).dot((eye - centroid).normalize_or_zero());
+        if cos < min_cos {
+            continue;
+        }
+        let q = cam.world_to_camera.transform_point3(centroid);
+        if q.z <= 0.0 {
+            continue;
+        }
+        let u = cam.fx * q.x / q.z + cam.cx;
+        let v = cam.fy * q.y / q.z + cam.cy;
+        if !(u >= 0.0 && v >= 0.0 && (u as usize) < w && (v as usize) < h) {
+            continue;
+        }
+        let p = v as usize * w + u as usize;
+        let z = mesh_depth[p];
+        if z > 0.0 && (q.z - z).abs() <= 0.5 * q.z / cam.fx {
+            out.push((f, p, cos));
+        }
+    }
+    out
+}
+
+/// One view's depth map for [`observed_offsets`].
+pub struct DepthView<'a> {
+    /// The camera (pixel centres at `i + 0.5`).
+    pub camera: &'a Camera,
+    /// The observed z-depth through each pixel centre (`0` or non-finite: nothing).
+    pub depth: &'a [f32],
+    /// The mesh's own z-depth through each pixel centre (`0` on a miss).
+    pub mesh_depth: &'a [f32],
+}
+
+/// Per face, how far the observed surface lies from the face along its normal (scene units,
+/// negative: inside), and in how many views it was observed.
+#[derive(Clone, Debug, Default)]
+pub struct FaceOffsets {
+    /// The median over the views observing the face (0 where none does).
+    pub offset: Vec<f32>,
+    /// Views observing the face.
+    pub views: Vec<u32>,
+}
+
+/// The offsets the views' depth maps observe on each face of `mesh`, visibility as in
+/// [`observed_normals`]: in each view the depth difference at the face's pixel is taken along
+/// the pixel's ray and projected on the face normal (a plane moved by `d` along its normal
+/// moves the ray's hit by `d / cos`); per face the median over the views.
+pub fn observed_offsets(
+    mesh: &TriMesh,
+    views: &[DepthView<'_>],
+    min_cos: f32,
+) -> Result<FaceOffsets> {
+    let nf = mesh.triangles.len();
+    let mut per_face: Vec<Vec<f32>> = vec![Vec::new(); nf];
+    for v in views {
+        let cam = v.camera;
+        let n = cam.width as usize * cam.height as usize;
+        if v.depth.len() != n || v.mesh_depth.len() != n {
+            bail!(
+                "depth view: expected {n} depths and {n} mesh depths, got {} and {}",
+                v.depth.len(),
+                v.mesh_depth.len()
+            );
+        }
+        let w = cam.width as usize;
+        for (f, p, cos) in visible_faces(mesh, cam, v.mesh_depth, min_cos) {
+            let z = v.depth[p];
+            if !(z.is_finite() && z > 0.0) {
+                continue;
+            }
+            let x = ((p % w) as f32 + 0.5 - cam.cx) / cam.fx;
+            let y = ((p / w) as f32 + 0.5 - cam.cy) / cam.fy;
+            let along_ray = (z - v.mesh_depth[p]) * (1.0 + x * x + y * y).sqrt();
+            per_face[f].push(-along_ray * cos);
+        }
+    }
+    let mut out = FaceOffsets {
+        offset: vec![0.0; nf],
+        views: vec![0; nf],
+    };
+    for (f, o) in per_face.iter_mut().enumerate() {
+        if o.is_empty() {
+            continue;
+        }
+        o.sort_by(f32::total_cmp);
+        let m = o.len();
+        out.offset[f] = if m % 2 == 1 {
+            o[m / 2]
+        } else {
+            0.5 * (o[m / 2 - 1] + o[m / 2])
+        };
+        out.views[f] = m as u32;
     }
     Ok(out)
 }
@@ -200,7 +285,43 @@ pub fn refine_with_normals(
     targets: &FaceNormals,
     settings: &RefineSettings,
 ) -> Result<(TriMesh, Vec<f32>)> {
+    refine(mesh, targets, None, settings)
+}
+
+/// Per face, an offset along the face normal the refinement should reach (scene units,
+/// negative: inward) and the weight of that wish (0: none).
+#[derive(Clone, Debug, Default)]
+pub struct DepthTargets {
+    /// The offset per face.
+    pub offset: Vec<f32>,
+    /// Its weight per face, in `[0, 1]`.
+    pub weight: Vec<f32>,
+    /// The length over which a face's mean displacement may miss its offset where the
+    /// normals pull the other way: the term is `sum_f w_f A_f (mean_f d - o_f)^2 / length^2`.
+    pub length: f32,
+}
+
+/// [`refine_with_normals`] with, optionally, a depth term: each face's mean displacement is
+/// also pulled towards an observed offset ([`DepthTargets`]).
+pub fn refine(
+    mesh: &TriMesh,
+    targets: &FaceNormals,
+    depth: Option<&DepthTargets>,
+    settings: &RefineSettings,
+) -> Result<(TriMesh, Vec<f32>)> {
     let nf = mesh.triangles.len();
+    if let Some(dt) = depth {
+        if dt.offset.len() != nf || dt.weight.len() != nf {
+            bail!(
+                "depth targets: expected {nf}, got {} offsets and {} weights",
+                dt.offset.len(),
+                dt.weight.len()
+            );
+        }
+        if !(dt.length > 0.0 && dt.length.is_finite()) {
+            bail!("depth targets: the length must be positive");
+        }
+    }
     let nv = mesh.positions.len();
     if targets.normal.len() != nf || targets.weight.len() != nf {
         bail!(
@@ -259,6 +380,24 @@ pub fn refine_with_normals(
     for (bi, m) in b.iter_mut().zip(&varea) {
         *bi -= mu as f64 * *m as f64 * c;
     }
+    // The depth term, per face lambda A w (mean y - (o - c))^2 with lambda = 1 / length^2.
+    let depth_coef: Vec<f64> = match depth {
+        Some(dt) => {
+            let lambda = 1.0 / (dt.length as f64 * dt.length as f64);
+            (0..nf)
+                .map(|f| lambda * geo.areas[f] as f64 * dt.weight[f].clamp(0.0, 1.0) as f64)
+                .collect()
+        }
+        None => vec![0.0; nf],
+    };
+    if let Some(dt) = depth {
+        for (f, t) in mesh.triangles.iter().enumerate() {
+            let rhs = depth_coef[f] * (dt.offset[f] as f64 - c) / 3.0;
+            for k in t {
+                b[*k as usize] += rhs;
+            }
+        }
+    }
     let apply = |x: &[f64], out: &mut [f64], free: &[bool]| {
         for (o, (xi, m)) in out.iter_mut().zip(x.iter().zip(&varea)) {
             *o = mu as f64 * *m as f64 * xi;
@@ -274,6 +413,14 @@ pub fn refine_with_normals(
                 + g[2].as_dvec3() * x[t[2] as usize];
             for k in 0..3 {
                 out[t[k] as usize] += c * g[k].as_dvec3().dot(gx);
+            }
+        }
+        for (f, t) in mesh.triangles.iter().enumerate() {
+            if depth_coef[f] > 0.0 {
+                let mean = (x[t[0] as usize] + x[t[1] as usize] + x[t[2] as usize]) / 3.0;
+                for k in t {
+                    out[*k as usize] += depth_coef[f] * mean / 3.0;
+                }
             }
         }
         for (o, f) in out.iter_mut().zip(free) {
@@ -433,5 +580,62 @@ mod tests {
         };
         let (_, d) = refine_with_normals(&mesh, &flat, &settings).unwrap();
         assert!(d.iter().all(|v| v.abs() < 1e-6));
+    }
+
+    #[test]
+    fn a_depth_term_pulls_the_faces_to_their_offsets() {
+        // Flat normals (the mesh's own) and a dent of -0.05 wished inside r < 0.5.
+        let mesh = grid(40);
+        let nf = mesh.triangles.len();
+        let centre = |f: usize| -> Vec3 {
+            mesh.triangles[f]
+                .map(|i| mesh.positions[i as usize])
+                .iter()
+                .sum::<Vec3>()
+                / 3.0
+        };
+        let offset: Vec<f32> = (0..nf)
+            .map(|f| {
+                let c = centre(f);
+                if c.x * c.x + c.y * c.y < 0.25 {
+                    -0.05
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let flat = FaceNormals {
+            weight: vec![1.0; nf],
+            normal: vec![Vec3::Z; nf],
+        };
+        let settings = RefineSettings {
+            anchor: 10.0,
+            max_depth: 1.0,
+            ..RefineSettings::default()
+        };
+        let targets = DepthTargets {
+            offset: offset.clone(),
+            weight: vec![1.0; nf],
+            length: 0.01,
+        };
+        let (_, d) = refine(&mesh, &flat, Some(&targets), &settings).unwrap();
+        assert!(d.iter().all(|v| *v <= 0.0));
+        let (mid, edge) = (d[20 * 41 + 20], d[20 * 41 + 2]);
+        assert!((mid + 0.05).abs() < 0.005, "centre moved {mid}");
+        assert!(edge.abs() < 0.005, "edge moved {edge}");
+        // With no weight on the offsets nothing moves.
+        let none = DepthTargets {
+            weight: vec![0.0; nf],
+            ..targets
+        };
+        let (_, d) = refine(&mesh, &flat, Some(&none), &settings).unwrap();
+        assert!(d.iter().all(|v| v.abs() < 1e-6));
+        // Offsets and weights must match the faces.
+        let short = DepthTargets {
+            offset: vec![0.0; 3],
+            weight: vec![1.0; 3],
+            length: 0.01,
+        };
+        assert!(refine(&mesh, &flat, Some(&short), &settings).is_err());
     }
 }
