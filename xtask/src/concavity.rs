@@ -51,7 +51,7 @@ pub(crate) fn report(
     args: &DiagnoseSurfaceArgs,
 ) -> Result<String> {
     let (data, gap, anchors) = (&args.data, args.concavity_gap, &args.refine_anchors);
-    let (front_normals, noise, blur) = (args.front_normals, &args.refine_noise, &args.refine_blur);
+    let front_normals = args.front_normals;
     let (_, hull_mesh) = crate::bench_recon::native_masks_mesh(data)?;
     let hull_caster = gtsr_eval::MeshRaycaster::new(&hull_mesh, "masks' mesh")?;
     let gt_caster = gtsr_eval::MeshRaycaster::new(gt, "ground-truth mesh")?;
@@ -225,15 +225,7 @@ pub(crate) fn report(
         ));
     }
     if !anchors.is_empty() {
-        md.push_str(&refine_rows(
-            scene,
-            gt,
-            &hull_mesh,
-            &kept_maps,
-            anchors,
-            (noise, blur),
-            (&args.refine_depth, &args.offset_thresholds),
-        )?);
+        md.push_str(&refine_rows(scene, gt, &hull_mesh, &kept_maps, args)?);
     }
     Ok(md)
 }
@@ -260,10 +252,9 @@ fn refine_rows(
     gt: &gtsr_data::ply::TriMesh,
     hull: &gtsr_data::ply::TriMesh,
     maps: &[ViewMaps],
-    anchors: &[f32],
-    (noise, blur): (&[f32], &[usize]),
-    (depth_lengths, offset_thresholds): (&[f32], &[f32]),
+    args: &DiagnoseSurfaceArgs,
 ) -> Result<String> {
+    let (anchors, noise, blur) = (&args.refine_anchors, &args.refine_noise, &args.refine_blur);
     use crate::refine::{
         FaceNormals, NormalView, RefineSettings, observed_normals, refine, refine_with_normals,
     };
@@ -444,14 +435,14 @@ fn refine_rows(
         let label = format!("truth blurred over {0}x{0} pixels", 2 * radius + 1);
         altered_rows(label, &blurred, &mut md)?;
     }
-    if !depth_lengths.is_empty() {
+    if !args.refine_depth.is_empty() {
         md.push_str(&depth_rows(
             &cameras,
             maps,
             hull,
             footprint,
             &own,
-            (depth_lengths, offset_thresholds, anchors),
+            args,
             &|label: &str,
               normals: &FaceNormals,
               depth: &crate::refine::DepthTargets,
@@ -485,9 +476,15 @@ fn depth_rows(
     hull: &gtsr_data::ply::TriMesh,
     footprint: f32,
     own: &crate::refine::FaceNormals,
-    (lengths, thresholds, anchors): (&[f32], &[f32], &[f32]),
+    args: &DiagnoseSurfaceArgs,
     row: &DepthRow<'_>,
 ) -> Result<String> {
+    let (lengths, thresholds, anchors) = (
+        &args.refine_depth,
+        &args.offset_thresholds,
+        &args.refine_anchors,
+    );
+    let (truth_scales, truth_noise) = (&args.offset_truth_scale, &args.offset_truth_noise);
     use crate::refine::{DepthTargets, DepthView, FaceOffsets, observed_offsets};
     let offsets = |pick: &dyn Fn(&ViewMaps) -> Option<&[f32]>| -> Result<Option<FaceOffsets>> {
         let mut views = Vec::new();
@@ -631,6 +628,50 @@ fn depth_rows(
                     t,
                     own,
                 ));
+            }
+        }
+        // The truth's offsets degraded as a run's might be: scaled towards the masks and
+        // with seeded Gaussian noise per face (footprints), then thresholded as the run's.
+        let scales: &[f32] = if truth_scales.is_empty() && !truth_noise.is_empty() {
+            &[1.0]
+        } else {
+            truth_scales
+        };
+        let noises: &[f32] = if truth_noise.is_empty() && !truth_scales.is_empty() {
+            &[0.0]
+        } else {
+            truth_noise
+        };
+        for &scale in scales {
+            for &sigma in noises {
+                let mut rng = StdRng::seed_from_u64(0x6f6666736574);
+                let base = targets(&truth, length).0;
+                let degraded: Vec<f32> = base
+                    .offset
+                    .iter()
+                    .map(|v| {
+                        let u1: f32 = rng.random_range(f32::EPSILON..1.0);
+                        let u2: f32 = rng.random_range(0.0..1.0);
+                        let g = (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos();
+                        scale * v + sigma * footprint * g
+                    })
+                    .collect();
+                for &tau in thresholds {
+                    let t = DepthTargets {
+                        offset: degraded
+                            .iter()
+                            .map(|v| (*v + tau * footprint).min(0.0))
+                            .collect(),
+                        ..base.clone()
+                    };
+                    runs.push((
+                        format!(
+                            "truth x {scale} + noise {sigma} fp, threshold {tau} fp / masks' own / {length}"
+                        ),
+                        t,
+                        own,
+                    ));
+                }
             }
         }
         for (label, t, normals) in &runs {

@@ -85,6 +85,15 @@ pub struct DiagnoseSurfaceArgs {
     /// thresholds (footprints): inward offsets are shrunk by it, the rest ask the face to stay.
     #[arg(long, num_args = 0.., default_values_t = [0.0])]
     pub offset_thresholds: Vec<f32>,
+    /// With `--refine-depth`: also refine with the truth's offsets scaled by each of these
+    /// factors (towards the masks' mesh, as a run that bridges concavities would see them),
+    /// thresholded as the run's: how much of a concavity a run's depth must see.
+    #[arg(long, num_args = 0..)]
+    pub offset_truth_scale: Vec<f32>,
+    /// With `--refine-depth`: also refine with the truth's offsets plus seeded Gaussian noise
+    /// per face of each of these standard deviations (footprints), thresholded as the run's.
+    #[arg(long, num_args = 0..)]
+    pub offset_truth_noise: Vec<f32>,
 }
 
 /// Bin edges in training-pixel footprints (signed distance to the ground truth).
@@ -153,6 +162,14 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     }
     if args.offset_crossing.is_some_and(|t| !(t > 0.0 && t < 1.0)) {
         bail!("--offset-crossing must lie strictly between 0 and 1");
+    }
+    if args
+        .offset_truth_scale
+        .iter()
+        .chain(&args.offset_truth_noise)
+        .any(|v| !(v.is_finite() && *v >= 0.0))
+    {
+        bail!("--offset-truth-scale and --offset-truth-noise must be finite and >= 0");
     }
     if (!args.refine_depth.is_empty() || args.offset_crossing.is_some())
         && args.refine_anchors.is_empty()
