@@ -58,6 +58,12 @@ pub struct Args {
     /// `--out/config.json` unless `--config` or the flags say otherwise.
     #[arg(long)]
     pub resume: bool,
+    /// Stop at this step of the schedule: write the checkpoint and every output of the model
+    /// as it stands there, and exit; `--resume` continues the schedule from it. With
+    /// `--resume` on a run already at this step: only the outputs (the mesh, the evaluation)
+    /// of that step's model, e.g. in a copy of a run folder with other mesh settings.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    pub stop_at: Option<u64>,
     /// Evaluations (test PSNR/SSIM, mesh chamfer) along the run for the error-against-time log.
     #[arg(long, default_value_t = 10)]
     pub eval_points: usize,

@@ -489,6 +489,19 @@ pub fn run(args: &Args) -> Result<Outcome> {
         )
     };
     let iterations = trainer.config().iterations;
+    // Where this invocation stops: the end of the schedule, or `--stop-at`.
+    let stop_at = match args.stop_at.map(|n| n as usize) {
+        Some(n) if n > iterations => bail!(
+            "--stop-at {n}: the run's schedule has {iterations} steps; give a step up to that"
+        ),
+        Some(n) if n < trainer.steps_done() => bail!(
+            "--stop-at {n}: the checkpoint in {} is already at step {}",
+            args.out.display(),
+            trainer.steps_done()
+        ),
+        Some(n) => n,
+        None => iterations,
+    };
     // Coarse to fine: the steps before `coarse_until` train on the views at half the size.
     let mut full_views = None;
     if trainer.steps_done() < trainer.config().coarse_until {
@@ -560,6 +573,13 @@ pub fn run(args: &Args) -> Result<Outcome> {
     // models and the curve would show the resets, not the progress. Such a point moves one
     // step earlier.
     let densify = trainer.config().densify.clone();
+    if stop_at < iterations && densify.resets_after(stop_at) {
+        println!(
+            "note: step {stop_at} is right after an opacity reset; its outputs show the faded \
+             model (step {} is the one before)",
+            stop_at.saturating_sub(1).max(1)
+        );
+    }
     let eval_steps: Vec<usize> = (1..=args.eval_points.max(1))
         .map(|k| (iterations * k).div_ceil(args.eval_points.max(1)))
         .map(|s| {
@@ -592,7 +612,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
         (StepTimes::default(), 0usize),
         (StepTimes::default(), 0usize),
     ];
-    while trainer.steps_done() < iterations {
+    while trainer.steps_done() < stop_at {
         if stop.load(Ordering::SeqCst) {
             bar.abandon_with_message("interrupted");
             println!("Ctrl-C: writing a checkpoint and partial outputs");
@@ -698,6 +718,9 @@ pub fn run(args: &Args) -> Result<Outcome> {
         train_seconds,
         &args.out,
     )?;
+    if stop_at < iterations {
+        println!("stopped at step {stop_at} of {iterations} (--stop-at); continue with --resume");
+    }
     Ok(Outcome::Finished)
 }
 

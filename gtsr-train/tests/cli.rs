@@ -122,6 +122,46 @@ fn trains_a_tiny_scene_and_writes_every_output() {
         }
     }
 
+    // --stop-at: a run stopped part-way writes its outputs there and resumes from there.
+    let part = tmp.path().join("part");
+    let o = gtsr_train(
+        &scene,
+        &part,
+        &[
+            &TINY_RUN[..],
+            &["--stop-at", "25", "--checkpoint-every", "0"],
+        ]
+        .concat(),
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(
+        text(&o).contains("stopped at step 25 of 40"),
+        "{}",
+        text(&o)
+    );
+    assert!(part.join("mesh.ply").is_file() && part.join("metrics.json").is_file());
+    let pm: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(part.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(pm["iterations"], 25, "{pm}");
+    // The same step again: only the outputs; an earlier one is refused, a later one trains on.
+    let o = gtsr_train(&scene, &part, &["--resume", "--stop-at", "25"]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(
+        text(&o).contains("resuming at step 25 of 40"),
+        "{}",
+        text(&o)
+    );
+    let o = gtsr_train(&scene, &part, &["--resume", "--stop-at", "20"]);
+    assert!(!o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("already at step 25"), "{}", text(&o));
+    let o = gtsr_train(&scene, &part, &["--resume", "--stop-at", "41"]);
+    assert!(text(&o).contains("has 40 steps"), "{}", text(&o));
+    let o = gtsr_train(&scene, &part, &["--resume"]);
+    assert!(o.status.success(), "{}", text(&o));
+    let pm: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(part.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(pm["iterations"], 40, "{pm}");
+
     // --resume on a finished run re-extracts and re-evaluates without training further.
     let o = gtsr_train(&scene, &out, &[&TINY_RUN[..], &["--resume"]].concat());
     assert!(o.status.success(), "{}", text(&o));
