@@ -443,7 +443,6 @@ pub fn run(args: &Args) -> Result<Outcome> {
         train: config.clone(),
         mesh: mesh_config.clone(),
     };
-    outputs::write_json(&args.out.join("config.json"), &resolved)?;
 
     let device = compute_device(args.backend).autodiff();
     println!("compute device: {device:?}");
@@ -474,6 +473,22 @@ pub fn run(args: &Args) -> Result<Outcome> {
                 t.config().iterations
             );
         }
+        // The checkpoint trains on with its own settings; settings that say otherwise (a flag,
+        // `--config`, an edited config.json) would be silently ignored, and config.json would
+        // misrecord the run.
+        let differ = differing_fields(
+            &serde_json::to_value(t.config())?,
+            &serde_json::to_value(&config)?,
+        );
+        if !differ.is_empty() {
+            bail!(
+                "--resume: the checkpoint in {} trains on with its own settings, and these \
+                 given here differ from them: {}; resume without them (mesh settings may \
+                 change), or start a new run",
+                args.out.display(),
+                differ.join(", ")
+            );
+        }
         println!(
             "resuming at step {} of {}",
             t.steps_done(),
@@ -488,6 +503,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
             Timeline::new(),
         )
     };
+    outputs::write_json(&args.out.join("config.json"), &resolved)?;
     let iterations = trainer.config().iterations;
     // Where this invocation stops: the end of the schedule, or `--stop-at`.
     let stop_at = match args.stop_at.map(|n| n as usize) {
@@ -825,4 +841,37 @@ fn say(bar: &ProgressBar, line: String) {
 fn save_checkpoint(trainer: &Trainer, ckpt: &Path, state: &Path, train_seconds: f64) -> Result<()> {
     checkpoint::save(trainer, ckpt)?;
     outputs::write_json(state, &RunState { train_seconds })
+}
+
+/// The paths (`weights.mask`) at which two JSON values differ, as `path: a -> b`; at most
+/// eight.
+fn differing_fields(a: &serde_json::Value, b: &serde_json::Value) -> Vec<String> {
+    fn walk(a: &serde_json::Value, b: &serde_json::Value, path: &str, out: &mut Vec<String>) {
+        use serde_json::Value;
+        match (a, b) {
+            (Value::Object(x), Value::Object(y)) => {
+                let mut keys: Vec<&String> = x.keys().chain(y.keys()).collect();
+                keys.sort();
+                keys.dedup();
+                for k in keys {
+                    let p = if path.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{path}.{k}")
+                    };
+                    walk(
+                        x.get(k).unwrap_or(&Value::Null),
+                        y.get(k).unwrap_or(&Value::Null),
+                        &p,
+                        out,
+                    );
+                }
+            }
+            _ if a != b && out.len() < 8 => out.push(format!("{path}: {a} -> {b}")),
+            _ => {}
+        }
+    }
+    let mut out = Vec::new();
+    walk(a, b, "", &mut out);
+    out
 }

@@ -177,6 +177,22 @@ fn trains_a_tiny_scene_and_writes_every_output() {
         "{}",
         text(&o)
     );
+    // Nor can another training setting: the checkpoint trains on with its own, and the
+    // run's config.json keeps recording them.
+    let o = gtsr_train(
+        &scene,
+        &out,
+        &[&TINY_RUN[..], &["--resume", "--mask-weight", "0.5"]].concat(),
+    );
+    assert!(!o.status.success(), "{}", text(&o));
+    assert!(
+        text(&o).contains("weights.mask: 1.0 -> 0.5"),
+        "{}",
+        text(&o)
+    );
+    let kept: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("config.json")).unwrap()).unwrap();
+    assert_eq!(kept["train"], c["train"]);
     // The fusion variants that were not kept are settings of the file, not flags: a copy of
     // the run's config.json with them set re-extracts the finished run.
     let mut variant = c.clone();
