@@ -167,7 +167,7 @@ pub(crate) fn report(
                 run_depth: if args.refine_depth.is_empty() {
                     Vec::new()
                 } else {
-                    depth.clone()
+                    depth
                 },
                 crossing_depth,
                 truth_depth: truth_maps.depth,
@@ -212,11 +212,7 @@ pub(crate) fn report(
         if hull.is_empty() {
             continue;
         }
-        let label = match b {
-            0 => format!("< {}", NORMAL_BINS[0]),
-            b if b == NORMAL_BINS.len() => format!(">= {}", NORMAL_BINS[b - 1]),
-            b => format!("[{}, {})", NORMAL_BINS[b - 1], NORMAL_BINS[b]),
-        };
+        let label = bin_label(&NORMAL_BINS, b);
         let (hm, ha) = median_mean(hull);
         let (rm, ra) = median_mean(run);
         md.push_str(&format!(
@@ -384,12 +380,8 @@ fn refine_rows(
                         if n == Vec3::ZERO {
                             return [0.0; 3];
                         }
-                        let mut gauss = || -> f32 {
-                            let u1: f32 = rng.random_range(f32::EPSILON..1.0);
-                            let u2: f32 = rng.random_range(0.0..1.0);
-                            (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
-                        };
-                        let g = Vec3::new(gauss(), gauss(), gauss()) * sigma.to_radians();
+                        let g = Vec3::new(gauss(&mut rng), gauss(&mut rng), gauss(&mut rng))
+                            * sigma.to_radians();
                         let tilted = (n + (g - g.dot(n) * n)).normalize();
                         tilts.push(tilted.dot(n).clamp(-1.0, 1.0).acos().to_degrees());
                         tilted.to_array()
@@ -505,7 +497,7 @@ fn depth_rows(
     let crossing = offsets(&|m| m.crossing_depth.as_deref())?;
     // A face counts with at least this many views; its offset less the median over such faces.
     const MIN_VIEWS: u32 = 3;
-    let targets = |o: &FaceOffsets, length: f32| -> (DepthTargets, f32) {
+    let debias = |o: &FaceOffsets| -> (DepthTargets, f32) {
         let mut kept: Vec<f32> = (0..o.offset.len())
             .filter(|f| o.views[*f] >= MIN_VIEWS)
             .map(|f| o.offset[f])
@@ -522,9 +514,13 @@ fn depth_rows(
                 .iter()
                 .map(|n| if *n >= MIN_VIEWS { 1.0 } else { 0.0 })
                 .collect(),
-            length,
+            length: 1.0,
         };
         (t, bias)
+    };
+    let with_length = |t: &DepthTargets, length: f32| DepthTargets {
+        length,
+        ..t.clone()
     };
     let mut md = format!(
         "\nPer face of the masks' mesh (seen in at least {MIN_VIEWS} views), the offset the depth \
@@ -534,8 +530,8 @@ fn depth_rows(
     );
     // Where both the blend and the front say the face lies inside: the less inward of the two.
     let both = crossing.as_ref().map(|c| FaceOffsets {
-        offset: (targets(c, 1.0).0.offset.iter())
-            .zip(&targets(&blended, 1.0).0.offset)
+        offset: (debias(c).0.offset.iter())
+            .zip(&debias(&blended).0.offset)
             .map(|(a, b)| a.max(*b))
             .collect(),
         views: (c.views.iter().zip(&blended.views))
@@ -557,8 +553,8 @@ fn depth_rows(
     }
     md.push('\n');
     const EDGES: [f32; 5] = [-3.0, -1.0, -0.5, -0.25, 0.25];
-    let (truth_t, truth_bias) = targets(&truth, 1.0);
-    let debiased: Vec<(DepthTargets, f32)> = sources.iter().map(|(_, o)| targets(o, 1.0)).collect();
+    let (truth_t, truth_bias) = debias(&truth);
+    let debiased: Vec<(DepthTargets, f32)> = sources.iter().map(|(_, o)| debias(o)).collect();
     for b in 0..=EDGES.len() {
         let in_bin = |f: usize| {
             let t = truth_t.offset[f] / footprint;
@@ -568,11 +564,7 @@ fn depth_rows(
         if faces.is_empty() {
             continue;
         }
-        let label = match b {
-            0 => format!("< {}", EDGES[0]),
-            b if b == EDGES.len() => format!(">= {}", EDGES[b - 1]),
-            b => format!("[{}, {})", EDGES[b - 1], EDGES[b]),
-        };
+        let label = bin_label(&EDGES, b);
         md.push_str(&format!("| {label} | {} |", faces.len()));
         for (t, _) in &debiased {
             let mut v: Vec<f32> = faces
@@ -613,13 +605,13 @@ fn depth_rows(
     for &length in lengths {
         let mut runs: Vec<(String, DepthTargets, &crate::refine::FaceNormals)> = vec![(
             format!("truth / masks' own / {length}"),
-            targets(&truth, length).0,
+            with_length(&truth_t, length),
             own,
         )];
-        for (name, o) in &sources {
+        for ((name, _), (source, _)) in sources.iter().zip(&debiased) {
             for &tau in thresholds {
                 // Inward only, and shrunk by the threshold: offsets within it say "stay".
-                let mut t = targets(o, length).0;
+                let mut t = with_length(source, length);
                 for v in t.offset.iter_mut() {
                     *v = (*v + tau * footprint).min(0.0);
                 }
@@ -645,16 +637,11 @@ fn depth_rows(
         for &scale in scales {
             for &sigma in noises {
                 let mut rng = StdRng::seed_from_u64(0x6f6666736574);
-                let base = targets(&truth, length).0;
+                let base = with_length(&truth_t, length);
                 let degraded: Vec<f32> = base
                     .offset
                     .iter()
-                    .map(|v| {
-                        let u1: f32 = rng.random_range(f32::EPSILON..1.0);
-                        let u2: f32 = rng.random_range(0.0..1.0);
-                        let g = (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos();
-                        scale * v + sigma * footprint * g
-                    })
+                    .map(|v| scale * v + sigma * footprint * gauss(&mut rng))
                     .collect();
                 for &tau in thresholds {
                     let t = DepthTargets {
@@ -681,6 +668,22 @@ fn depth_rows(
         }
     }
     Ok(md)
+}
+
+/// The label of bin `b` of `edges` (bin 0 below the first edge, the last above the last).
+fn bin_label(edges: &[f32], b: usize) -> String {
+    match b {
+        0 => format!("< {}", edges[0]),
+        b if b == edges.len() => format!(">= {}", edges[b - 1]),
+        b => format!("[{}, {})", edges[b - 1], edges[b]),
+    }
+}
+
+/// A standard normal sample (Box-Muller), drawing two uniforms from `rng`.
+fn gauss(rng: &mut StdRng) -> f32 {
+    let u1: f32 = rng.random_range(f32::EPSILON..1.0);
+    let u2: f32 = rng.random_range(0.0..1.0);
+    (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
 }
 
 /// The median and the mean of `v` (sorted in place); NaN for an empty `v`.

@@ -123,6 +123,18 @@ struct RunConfig {
     resolution: u32,
 }
 
+/// Errors unless every value is finite and positive (`positive`) or at least 0, naming `what`.
+fn all_finite(values: &[f32], positive: bool, what: &str) -> Result<()> {
+    let ok = |v: f32| v.is_finite() && if positive { v > 0.0 } else { v >= 0.0 };
+    if !values.iter().all(|v| ok(*v)) {
+        bail!(
+            "{what} must be finite and {}",
+            if positive { "positive" } else { ">= 0" }
+        );
+    }
+    Ok(())
+}
+
 /// Runs the diagnosis and prints (and writes) the report.
 #[allow(deprecated)] // burn-ndarray: deprecated upstream, kept as the CPU backend.
 pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
@@ -132,45 +144,22 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     if !(args.concavity_gap.is_finite() && args.concavity_gap >= 0.0) {
         bail!("--concavity-gap must be a finite number >= 0");
     }
-    if args
-        .refine_anchors
-        .iter()
-        .any(|a| !(a.is_finite() && *a > 0.0))
-    {
-        bail!("--refine-anchors must be finite and positive");
-    }
-    if args
-        .refine_noise
-        .iter()
-        .any(|n| !(n.is_finite() && *n >= 0.0))
-    {
-        bail!("--refine-noise must be finite and >= 0");
-    }
-    if args
-        .refine_depth
-        .iter()
-        .any(|l| !(l.is_finite() && *l > 0.0))
-    {
-        bail!("--refine-depth lengths must be finite and positive");
-    }
-    if args
-        .offset_thresholds
-        .iter()
-        .any(|t| !(t.is_finite() && *t >= 0.0))
-    {
-        bail!("--offset-thresholds must be finite and >= 0");
-    }
+    all_finite(&args.refine_anchors, true, "--refine-anchors")?;
+    all_finite(&args.refine_noise, false, "--refine-noise")?;
+    all_finite(&args.refine_depth, true, "--refine-depth lengths")?;
+    all_finite(&args.offset_thresholds, false, "--offset-thresholds")?;
     if args.offset_crossing.is_some_and(|t| !(t > 0.0 && t < 1.0)) {
         bail!("--offset-crossing must lie strictly between 0 and 1");
     }
-    if args
-        .offset_truth_scale
-        .iter()
+    let truth_degraded: Vec<f32> = (args.offset_truth_scale.iter())
         .chain(&args.offset_truth_noise)
-        .any(|v| !(v.is_finite() && *v >= 0.0))
-    {
-        bail!("--offset-truth-scale and --offset-truth-noise must be finite and >= 0");
-    }
+        .copied()
+        .collect();
+    all_finite(
+        &truth_degraded,
+        false,
+        "--offset-truth-scale and --offset-truth-noise",
+    )?;
     if (!args.refine_depth.is_empty() || args.offset_crossing.is_some())
         && args.refine_anchors.is_empty()
     {

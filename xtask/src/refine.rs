@@ -381,18 +381,15 @@ pub fn refine(
         *bi -= mu as f64 * *m as f64 * c;
     }
     // The depth term, per face lambda A w (mean y - (o - c))^2 with lambda = 1 / length^2.
-    let depth_coef: Vec<f64> = match depth {
-        Some(dt) => {
-            let lambda = 1.0 / (dt.length as f64 * dt.length as f64);
-            (0..nf)
-                .map(|f| lambda * geo.areas[f] as f64 * dt.weight[f].clamp(0.0, 1.0) as f64)
-                .collect()
-        }
-        None => vec![0.0; nf],
-    };
-    if let Some(dt) = depth {
+    let depth_coef: Option<Vec<f64>> = depth.map(|dt| {
+        let lambda = 1.0 / (dt.length as f64 * dt.length as f64);
+        (0..nf)
+            .map(|f| lambda * geo.areas[f] as f64 * dt.weight[f].clamp(0.0, 1.0) as f64)
+            .collect()
+    });
+    if let (Some(dt), Some(coef)) = (depth, &depth_coef) {
         for (f, t) in mesh.triangles.iter().enumerate() {
-            let rhs = depth_coef[f] * (dt.offset[f] as f64 - c) / 3.0;
+            let rhs = coef[f] * (dt.offset[f] as f64 - c) / 3.0;
             for k in t {
                 b[*k as usize] += rhs;
             }
@@ -415,11 +412,13 @@ pub fn refine(
                 out[t[k] as usize] += c * g[k].as_dvec3().dot(gx);
             }
         }
-        for (f, t) in mesh.triangles.iter().enumerate() {
-            if depth_coef[f] > 0.0 {
-                let mean = (x[t[0] as usize] + x[t[1] as usize] + x[t[2] as usize]) / 3.0;
-                for k in t {
-                    out[*k as usize] += depth_coef[f] * mean / 3.0;
+        if let Some(coef) = &depth_coef {
+            for (t, &k_f) in mesh.triangles.iter().zip(coef) {
+                if k_f > 0.0 {
+                    let mean = (x[t[0] as usize] + x[t[1] as usize] + x[t[2] as usize]) / 3.0;
+                    for k in t {
+                        out[*k as usize] += k_f * mean / 3.0;
+                    }
                 }
             }
         }
