@@ -36,6 +36,9 @@ pub struct RunMetrics {
     /// Surface Gaussians removed by the multi-view trim.
     #[serde(default)]
     pub trimmed_surface: usize,
+    /// Hidden surface Gaussians moved to the interior set (`densify.demote_every`).
+    #[serde(default)]
+    pub demoted_surface: usize,
     /// Mean test PSNR of C_SH (dB).
     pub test_psnr: f64,
     /// Mean test SSIM of C_SH.

@@ -533,6 +533,26 @@ pub struct DensifyConfig {
     #[serde(default = "default_trim_transmittance")]
     #[arg(long = "trim-transmittance", id = "train.densify.trim_transmittance", value_name = "T", default_value_t = DensifyConfig::default().trim_transmittance, value_parser = parse_open_unit)]
     pub trim_transmittance: f64,
+    /// Moves the surface Gaussians hidden behind the surface set's front into the interior
+    /// set every this many steps of stage 2, to the end of the run (0: never).
+    ///
+    /// A surface Gaussian is hidden when fewer than [`Self::demote_min_views`] training views
+    /// observe it: blend it at some pixel while the transmittance in front is above
+    /// [`Self::demote_transmittance`] ([`crate::Model::observed_surface`]). Stage 1 fits the
+    /// translucent glow with the surface set alone, as a stack of layers; the layers behind
+    /// the front are what the interior set models, and they keep their parameters there.
+    /// The trim prunes the same Gaussians instead.
+    #[serde(default)]
+    #[arg(long = "demote-every", id = "train.densify.demote_every", value_name = "STEPS", default_value_t = DensifyConfig::default().demote_every, value_parser = clap::value_parser!(usize))]
+    pub demote_every: usize,
+    /// Views in which a surface Gaussian must be observed to stay in the surface set.
+    #[serde(default = "default_trim_min_views")]
+    #[arg(long = "demote-min-views", id = "train.densify.demote_min_views", value_name = "N", default_value_t = DensifyConfig::default().demote_min_views, value_parser = parse_count)]
+    pub demote_min_views: usize,
+    /// Transmittance above which a surface splat counts as observed by the demotion.
+    #[serde(default = "default_trim_transmittance")]
+    #[arg(long = "demote-transmittance", id = "train.densify.demote_transmittance", value_name = "T", default_value_t = DensifyConfig::default().demote_transmittance, value_parser = parse_open_unit)]
+    pub demote_transmittance: f64,
 }
 
 fn default_reset_until() -> usize {
@@ -569,6 +589,15 @@ impl DensifyConfig {
             && done.is_multiple_of(self.trim_every)
             && done < self.end
     }
+
+    /// Whether hidden surface Gaussians move to the interior set after the step that makes
+    /// `done` steps in all, in a run whose stage 2 starts at `stage2_start`: every
+    /// [`Self::demote_every`] steps of stage 2, and once right where it starts.
+    pub fn demotes_after(&self, done: usize, stage2_start: usize) -> bool {
+        self.demote_every > 0
+            && done > stage2_start
+            && (done - stage2_start - 1).is_multiple_of(self.demote_every)
+    }
 }
 
 impl Default for DensifyConfig {
@@ -587,6 +616,9 @@ impl Default for DensifyConfig {
             trim_every: 0,
             trim_min_views: default_trim_min_views(),
             trim_transmittance: default_trim_transmittance(),
+            demote_every: 0,
+            demote_min_views: default_trim_min_views(),
+            demote_transmittance: default_trim_transmittance(),
         }
     }
 }
@@ -783,6 +815,15 @@ impl TrainConfig {
                 "densify.trim_transmittance must be in (0, 1), got {t}"
             ));
         }
+        let t = self.densify.demote_transmittance;
+        if !(t > 0.0 && t < 1.0) {
+            bad.push(format!(
+                "densify.demote_transmittance must be in (0, 1), got {t}"
+            ));
+        }
+        if self.densify.demote_every > 0 && !self.components.interior {
+            bad.push("densify.demote_every needs the interior set".into());
+        }
         for (name, v) in [
             ("init_radius", self.init_radius),
             ("pbr_gamma", self.pbr_gamma),
@@ -894,6 +935,40 @@ mod tests {
             (0, 2)
         );
         assert_eq!(back.densify.trim_transmittance, 0.9);
+    }
+
+    #[test]
+    fn demotions_run_from_the_start_of_stage_2_to_the_end() {
+        let c = TrainConfig::for_iterations(Components::FULL, 1500);
+        let mut d = c.densify.clone();
+        assert!(
+            !(1..=1500).any(|s| d.demotes_after(s, c.stage2_start)),
+            "off by default"
+        );
+        d.demote_every = 50;
+        let at: Vec<usize> = (1..=1500)
+            .filter(|s| d.demotes_after(*s, c.stage2_start))
+            .collect();
+        // Right after the first stage-2 step (step 350 makes 351 done), then every 50 steps,
+        // past the end of densification.
+        assert_eq!(at.first(), Some(&351));
+        assert_eq!(at.last(), Some(&1451));
+        assert_eq!(at.len(), 23);
+        // Configurations written before the demotion existed read with it off.
+        let mut json = serde_json::to_value(&c).unwrap();
+        let obj = json["densify"].as_object_mut().unwrap();
+        obj.remove("demote_every");
+        obj.remove("demote_min_views");
+        obj.remove("demote_transmittance");
+        let back: TrainConfig = serde_json::from_value(json).unwrap();
+        assert_eq!(back.densify, c.densify);
+        // Out-of-range settings and a demotion without an interior set are refused.
+        let mut bad = c.clone();
+        bad.densify.demote_transmittance = 1.0;
+        assert!(bad.validate().is_err());
+        let mut bad = TrainConfig::for_iterations(Preset::NoInterior.components().unwrap(), 1500);
+        bad.densify.demote_every = 50;
+        assert!(bad.validate().is_err());
     }
 
     #[test]

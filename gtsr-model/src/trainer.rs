@@ -43,6 +43,10 @@ pub struct Counters {
     /// Surface Gaussians removed by the multi-view trim so far.
     #[serde(default)]
     pub trimmed: usize,
+    /// Hidden surface Gaussians moved to the interior set so far
+    /// ([`Trainer::demote_hidden`]).
+    #[serde(default)]
+    pub demoted: usize,
 }
 
 /// What one step did.
@@ -939,6 +943,79 @@ impl Trainer {
         Ok(removed)
     }
 
+    /// Moves the surface Gaussians that fewer than `min_views` training views observe
+    /// ([`Self::observation_counts`] at the transmittance `threshold`) into the interior set,
+    /// with their position, shape, opacity and colour; their material parameters are
+    /// dropped and their optimiser state starts afresh. Where the interior set would pass
+    /// its cap ([`crate::config::DensifyConfig::max_interior`]), the most opaque of them
+    /// move and the rest are pruned. Returns how many moved and how many were pruned; does
+    /// nothing without an interior set.
+    pub fn demote_hidden(
+        &mut self,
+        min_views: usize,
+        threshold: f64,
+    ) -> Result<(usize, usize), ModelError> {
+        let Some(interior) = self.model.interior.as_ref() else {
+            return Ok((0, 0));
+        };
+        let seen = self.observation_counts(threshold)?;
+        let (keep, hidden): (Vec<usize>, Vec<usize>) =
+            (0..seen.len()).partition(|&i| seen[i] >= min_views);
+        if hidden.is_empty() {
+            return Ok((0, 0));
+        }
+        let surface = self.model.surface.to_host();
+        let interior = interior.to_host();
+        let room = self
+            .config
+            .densify
+            .max_interior
+            .saturating_sub(interior.n)
+            .min(hidden.len());
+        let mut moved = hidden;
+        if room < moved.len() {
+            let (op, _) = surface.column(ParamKind::Opacity).expect("opacity");
+            moved.sort_by(|a, b| op[*b].total_cmp(&op[*a]));
+            moved.truncate(room);
+            moved.sort_unstable();
+        }
+        let mut extra = interior.empty_like();
+        for &i in &moved {
+            let row: Vec<Vec<f32>> = extra
+                .columns
+                .iter()
+                .map(|(k, w, _)| {
+                    let (v, sw) = surface
+                        .column(*k)
+                        .expect("the interior layout is the surface's");
+                    debug_assert_eq!(sw, *w);
+                    v[i * w..(i + 1) * w].to_vec()
+                })
+                .collect();
+            extra.push_row(&row);
+        }
+        let all_interior: Vec<usize> = (0..interior.n).collect();
+        self.model.interior = Some(
+            interior
+                .reindex(&all_interior, Some(&extra))
+                .to_device(&self.device),
+        );
+        self.opt_interior.reindex(&all_interior, extra.n);
+        let mut stats = self.stats_interior.clone();
+        let zeros = DensifyStats::new(extra.n);
+        stats.grad_sum.extend(zeros.grad_sum);
+        stats.count.extend(zeros.count);
+        stats.max_radius.extend(zeros.max_radius);
+        self.stats_interior = stats;
+        self.model.surface = surface.reindex(&keep, None).to_device(&self.device);
+        self.opt_surface.reindex(&keep, 0);
+        self.stats_surface = self.stats_surface.select(&keep);
+        let pruned = seen.len() - keep.len() - extra.n;
+        self.counters.demoted += extra.n;
+        self.counters.trimmed += pruned;
+        Ok((extra.n, pruned))
+    }
+
     fn maybe_densify(
         &mut self,
         step: usize,
@@ -985,6 +1062,9 @@ impl Trainer {
         if d.trims_after(s1) {
             self.counters.trimmed +=
                 self.trim_unobserved(d.trim_min_views, d.trim_transmittance)?;
+        }
+        if d.demotes_after(s1, self.config.stage2_start) {
+            self.demote_hidden(d.demote_min_views, d.demote_transmittance)?;
         }
         if d.resets_after(s1) {
             let mut host = self.model.surface.to_host();

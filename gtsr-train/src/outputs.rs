@@ -487,6 +487,7 @@ pub fn finish(
         tile_splats_per_pass: trainer.counters().tile_splats as f64
             / trainer.counters().passes.max(1) as f64,
         trimmed_surface: trainer.counters().trimmed,
+        demoted_surface: trainer.counters().demoted,
         test_psnr: e.psnr,
         test_ssim: e.ssim,
         test_psnr_masked: e.psnr_masked,

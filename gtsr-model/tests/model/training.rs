@@ -123,19 +123,34 @@ fn detached_model_renders_the_same_and_records_no_graph() {
     assert_eq!(a, b, "the detached render differs");
 }
 
-#[test]
-fn multi_view_trim_removes_exactly_the_gaussians_too_few_views_observe() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = tiny_scene(dir.path());
+/// A trainer of the full model for a 30-step run on the tiny scene (written into `dir`),
+/// with `adjust` applied to the configuration.
+fn full_trainer_30(
+    dir: &std::path::Path,
+    adjust: impl FnOnce(&mut gtsr_model::TrainConfig),
+) -> (gtsr_model::Trainer, burn::tensor::Device) {
+    let scene = tiny_scene(dir);
     let device = device();
-    let comps = Preset::Full.components().unwrap();
-    let mut t = trainer(&scene, small_config(comps, 30), &device);
-    // Opaque Gaussians, so that the ones deep inside the ball hide behind the front ones.
+    let mut config = small_config(Preset::Full.components().unwrap(), 30);
+    adjust(&mut config);
+    (trainer(&scene, config, &device), device)
+}
+
+/// Makes every surface Gaussian opaque (logit 3), so that the ones deep inside the ball hide
+/// behind the front ones.
+fn make_surface_opaque(t: &mut gtsr_model::Trainer, device: &burn::tensor::Device) {
     let mut host = t.model().surface.to_host();
     for o in host.column_mut(ParamKind::Opacity).unwrap() {
         *o = 3.0;
     }
-    t.model_mut().surface = host.to_device(&device);
+    t.model_mut().surface = host.to_device(device);
+}
+
+#[test]
+fn multi_view_trim_removes_exactly_the_gaussians_too_few_views_observe() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut t, device) = full_trainer_30(dir.path(), |_| {});
+    make_surface_opaque(&mut t, &device);
     let counts = |t: &gtsr_model::Trainer| t.observation_counts(0.5).unwrap();
     let views = counts(&t);
     let before = views.len();
@@ -159,13 +174,10 @@ fn multi_view_trim_removes_exactly_the_gaussians_too_few_views_observe() {
 #[test]
 fn scheduled_trim_runs_inside_the_densification_window_and_is_counted() {
     let dir = tempfile::tempdir().unwrap();
-    let scene = tiny_scene(dir.path());
-    let device = device();
-    let comps = Preset::Full.components().unwrap();
-    let mut config = small_config(comps, 30);
-    config.densify.trim_every = 10;
-    config.densify.end = 25;
-    let mut t = trainer(&scene, config, &device);
+    let (mut t, _device) = full_trainer_30(dir.path(), |c| {
+        c.densify.trim_every = 10;
+        c.densify.end = 25;
+    });
     let mut trimmed_at = Vec::new();
     for step in 1..=30 {
         let before = t.counters().trimmed;
@@ -179,4 +191,89 @@ fn scheduled_trim_runs_inside_the_densification_window_and_is_counted() {
     // Trims run after steps 10 and 20 only (not 30: densification has ended); the random start
     // puts Gaussians behind others, so both remove some.
     assert_eq!(trimmed_at, [10, 20], "trims after steps {trimmed_at:?}");
+}
+
+#[test]
+fn demotion_moves_the_hidden_surface_gaussians_into_the_interior_set() {
+    let dir = tempfile::tempdir().unwrap();
+    // No densification, so that only the demotion changes the sets.
+    let (mut t, device) = full_trainer_30(dir.path(), |c| c.densify.start = 1000);
+    let stage2 = t.config().stage2_start;
+    // Without an interior set (stage 1) nothing moves.
+    assert_eq!(t.demote_hidden(2, 0.9).unwrap(), (0, 0));
+    for _ in 0..=stage2 {
+        t.step().unwrap();
+    }
+    make_surface_opaque(&mut t, &device);
+    let views = t.observation_counts(0.9).unwrap();
+    let hidden: Vec<usize> = (0..views.len()).filter(|&i| views[i] < 2).collect();
+    assert!(!hidden.is_empty() && hidden.len() < views.len());
+    let surface = t.model().surface.to_host();
+    let interior_before = t.model().interior.as_ref().unwrap().len();
+    let (moved, pruned) = t.demote_hidden(2, 0.9).unwrap();
+    assert_eq!(
+        (moved, pruned),
+        (hidden.len(), 0),
+        "the cap leaves room for all"
+    );
+    assert_eq!(t.counters().demoted, moved);
+    assert_eq!(t.model().surface.len(), surface.n - moved);
+    // The moved rows are the hidden ones, in order, with every parameter the interior set has.
+    let interior = t.model().interior.as_ref().unwrap().to_host();
+    assert_eq!(interior.n, interior_before + moved);
+    for (kind, w, values) in &interior.columns {
+        let (src, sw) = surface.column(*kind).unwrap();
+        assert_eq!(sw, *w);
+        for (j, &i) in hidden.iter().enumerate() {
+            let k = interior_before + j;
+            assert_eq!(
+                &values[k * w..(k + 1) * w],
+                &src[i * w..(i + 1) * w],
+                "{kind:?}"
+            );
+        }
+    }
+    // Every surface Gaussian left is observed by two views: removing splats only raises the
+    // transmittance in front of the others. Training goes on with both sets.
+    assert!(t.observation_counts(0.9).unwrap().iter().all(|&v| v >= 2));
+    let r = t.step().unwrap();
+    assert!(!r.skipped && r.loss.is_finite());
+}
+
+#[test]
+fn scheduled_demotion_runs_through_stage_2_and_keeps_the_interior_cap() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut t, _device) = full_trainer_30(dir.path(), |c| {
+        c.densify.start = 1000;
+        c.densify.demote_every = 5;
+        c.densify.demote_transmittance = 0.99;
+        c.densify.max_interior = 170;
+    });
+    let stage2 = t.config().stage2_start;
+    let mut demoted_at = Vec::new();
+    for step in 1..=30 {
+        let before = t.counters().demoted + t.counters().trimmed;
+        let r = t.step().unwrap();
+        assert!(!r.skipped && r.loss.is_finite(), "step {step}");
+        if t.counters().demoted + t.counters().trimmed > before {
+            demoted_at.push(step);
+        }
+        if let Some(int) = t.model().interior.as_ref() {
+            assert!(
+                int.len() <= 170,
+                "the interior set passed its cap: {}",
+                int.len()
+            );
+        }
+        assert_eq!(r.counts.0, t.model().surface.len());
+    }
+    // Only right after the first stage-2 step and every 5 steps after it; the random start
+    // hides Gaussians behind others at the first one, and more than the cap leaves room for.
+    assert_eq!(demoted_at.first(), Some(&(stage2 + 1)), "{demoted_at:?}");
+    assert!(
+        demoted_at.iter().all(|s| (s - stage2 - 1) % 5 == 0),
+        "{demoted_at:?}"
+    );
+    assert_eq!(t.model().interior.as_ref().unwrap().len(), 170);
+    assert!(t.counters().trimmed > 0);
 }
