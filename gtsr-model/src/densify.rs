@@ -39,6 +39,20 @@ impl DensifyStats {
         }
     }
 
+    /// These statistics followed by zeroed ones for `added` new Gaussians.
+    pub fn with_new_rows(&self, added: usize) -> DensifyStats {
+        let grow = |v: &[f32]| {
+            let mut v = v.to_vec();
+            v.resize(v.len() + added, 0.0);
+            v
+        };
+        DensifyStats {
+            grad_sum: grow(&self.grad_sum),
+            count: grow(&self.count),
+            max_radius: grow(&self.max_radius),
+        }
+    }
+
     /// Adds one step: `grad_px` `[N, 2]` row-major (`dL/d mean2d` in pixels), the screen radii,
     /// and the image width (3DGS measures the gradient in NDC: `px * W / 2`).
     pub fn add(&mut self, grad_px: &[f32], radii: &[f32], width: usize, height: usize) {

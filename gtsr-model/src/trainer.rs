@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::{Init, TrainConfig};
 use crate::densify::{DensifyReport, DensifyStats, densify_and_prune, reset_opacity};
 use crate::error::ModelError;
-use crate::gaussians::{GaussianSet, ParamKind, SetKind, host_set_from_points, host_vec};
+use crate::gaussians::{GaussianSet, HostSet, ParamKind, SetKind, host_set_from_points, host_vec};
 use crate::losses;
 use crate::model::{Model, RenderOptions, scalar_param};
 use crate::optim::SetOptimizer;
@@ -931,16 +931,31 @@ impl Trainer {
         min_views: usize,
         threshold: f64,
     ) -> Result<usize, ModelError> {
-        let seen = self.observation_counts(threshold)?;
-        let keep: Vec<usize> = (0..seen.len()).filter(|&i| seen[i] >= min_views).collect();
-        let removed = seen.len() - keep.len();
-        if removed > 0 {
-            let host = self.model.surface.to_host().reindex(&keep, None);
-            self.opt_surface.reindex(&keep, 0);
-            self.model.surface = host.to_device(&self.device);
-            self.stats_surface = self.stats_surface.select(&keep);
+        let (keep, hidden) = self.split_observed(min_views, threshold)?;
+        if !hidden.is_empty() {
+            let host = self.model.surface.to_host();
+            self.keep_surface(&host, &keep);
         }
-        Ok(removed)
+        Ok(hidden.len())
+    }
+
+    /// The surface Gaussians that at least `min_views` training views observe
+    /// ([`Self::observation_counts`] at the transmittance `threshold`), and the rest.
+    fn split_observed(
+        &self,
+        min_views: usize,
+        threshold: f64,
+    ) -> Result<(Vec<usize>, Vec<usize>), ModelError> {
+        let seen = self.observation_counts(threshold)?;
+        Ok((0..seen.len()).partition(|&i| seen[i] >= min_views))
+    }
+
+    /// Keeps the rows `keep` of the surface set (`host`, its host copy), with their
+    /// optimiser state and densification statistics.
+    fn keep_surface(&mut self, host: &HostSet, keep: &[usize]) {
+        self.model.surface = host.reindex(keep, None).to_device(&self.device);
+        self.opt_surface.reindex(keep, 0);
+        self.stats_surface = self.stats_surface.select(keep);
     }
 
     /// Moves the surface Gaussians that fewer than `min_views` training views observe
@@ -955,45 +970,29 @@ impl Trainer {
         min_views: usize,
         threshold: f64,
     ) -> Result<(usize, usize), ModelError> {
-        let Some(interior) = self.model.interior.as_ref() else {
-            return Ok((0, 0));
-        };
-        let seen = self.observation_counts(threshold)?;
-        let (keep, hidden): (Vec<usize>, Vec<usize>) =
-            (0..seen.len()).partition(|&i| seen[i] >= min_views);
-        if hidden.is_empty() {
+        if self.model.interior.is_none() {
             return Ok((0, 0));
         }
+        let (keep, mut moved) = self.split_observed(min_views, threshold)?;
+        if moved.is_empty() {
+            return Ok((0, 0));
+        }
+        let interior = self.model.interior.as_ref().expect("checked").to_host();
+        let hidden = moved.len();
         let surface = self.model.surface.to_host();
-        let interior = interior.to_host();
-        let room = self
-            .config
-            .densify
-            .max_interior
-            .saturating_sub(interior.n)
-            .min(hidden.len());
-        let mut moved = hidden;
+        let room = self.config.densify.max_interior.saturating_sub(interior.n);
         if room < moved.len() {
             let (op, _) = surface.column(ParamKind::Opacity).expect("opacity");
             moved.sort_by(|a, b| op[*b].total_cmp(&op[*a]));
             moved.truncate(room);
             moved.sort_unstable();
         }
-        let mut extra = interior.empty_like();
-        for &i in &moved {
-            let row: Vec<Vec<f32>> = extra
-                .columns
-                .iter()
-                .map(|(k, w, _)| {
-                    let (v, sw) = surface
-                        .column(*k)
-                        .expect("the interior layout is the surface's");
-                    debug_assert_eq!(sw, *w);
-                    v[i * w..(i + 1) * w].to_vec()
-                })
-                .collect();
-            extra.push_row(&row);
-        }
+        // The moved rows, less the material columns the interior set does not have.
+        let mut extra = surface.reindex(&moved, None);
+        extra.kind = interior.kind;
+        extra
+            .columns
+            .retain(|(k, _, _)| interior.column(*k).is_some());
         let all_interior: Vec<usize> = (0..interior.n).collect();
         self.model.interior = Some(
             interior
@@ -1001,16 +1000,9 @@ impl Trainer {
                 .to_device(&self.device),
         );
         self.opt_interior.reindex(&all_interior, extra.n);
-        let mut stats = self.stats_interior.clone();
-        let zeros = DensifyStats::new(extra.n);
-        stats.grad_sum.extend(zeros.grad_sum);
-        stats.count.extend(zeros.count);
-        stats.max_radius.extend(zeros.max_radius);
-        self.stats_interior = stats;
-        self.model.surface = surface.reindex(&keep, None).to_device(&self.device);
-        self.opt_surface.reindex(&keep, 0);
-        self.stats_surface = self.stats_surface.select(&keep);
-        let pruned = seen.len() - keep.len() - extra.n;
+        self.stats_interior = self.stats_interior.with_new_rows(extra.n);
+        self.keep_surface(&surface, &keep);
+        let pruned = hidden - extra.n;
         self.counters.demoted += extra.n;
         self.counters.trimmed += pruned;
         Ok((extra.n, pruned))
