@@ -371,10 +371,17 @@ pub struct LossWeights {
     #[arg(skip)]
     pub mask_deficit_only: bool,
     /// The mask term leaves out the pixels within this many pixels of each view's silhouette
-    /// ([`crate::losses::mask_l1_outside_band`]; 0: every pixel counts, as the paper).
+    /// ([`crate::losses::mask_l1_outside_band`]; 0: every pixel counts, as the paper). With
+    /// `--demote-every` it takes the rendered depth onto the surface.
+    #[serde(default)]
+    #[arg(long = "mask-band", id = "train.weights.mask_band", value_name = "PX", default_value_t = LossWeights::default().mask_band)]
+    pub mask_band: u32,
+    /// The photometric terms (C_SH and C_PBR) leave out the pixels within this many pixels of
+    /// each view's silhouette as well ([`crate::losses::photometric_masked`]; 0: every pixel
+    /// counts, as the paper; needs masks).
     #[serde(default)]
     #[arg(skip)]
-    pub mask_band: u32,
+    pub photometric_band: u32,
     /// Stage 2: the weight of the front-layer depth term ([`crate::losses::front_depth`]: the
     /// blended depth, differentiated through the surface opacities only, against the depth
     /// where the surface set's transmittance first falls to 0.9; not in the paper, 0: off).
@@ -406,6 +413,7 @@ impl Default for LossWeights {
             opacity_entropy: 0.0,
             mask_deficit_only: false,
             mask_band: 0,
+            photometric_band: 0,
             front_depth: 0.0,
             opacity_l1: 0.0,
         }
@@ -824,6 +832,18 @@ impl TrainConfig {
         if self.densify.demote_every > 0 && !self.components.interior {
             bad.push("densify.demote_every needs the interior set".into());
         }
+        let cap = crate::views::MASK_EDGE_CAP as u32;
+        for (name, band) in [
+            ("weights.mask_band", self.weights.mask_band),
+            ("weights.photometric_band", self.weights.photometric_band),
+        ] {
+            if band >= cap {
+                bad.push(format!(
+                    "{name} must be below {cap} pixels (the silhouette distance is measured up to \
+                     {cap}), got {band}"
+                ));
+            }
+        }
         for (name, v) in [
             ("init_radius", self.init_radius),
             ("pbr_gamma", self.pbr_gamma),
@@ -969,6 +989,36 @@ mod tests {
         let mut bad = TrainConfig::for_iterations(Preset::NoInterior.components().unwrap(), 1500);
         bad.densify.demote_every = 50;
         assert!(bad.validate().is_err());
+    }
+
+    #[test]
+    fn silhouette_bands_are_off_by_default_and_kept_below_the_measured_distance() {
+        let c = TrainConfig::for_iterations(Components::FULL, 100);
+        assert_eq!((c.weights.mask_band, c.weights.photometric_band), (0, 0));
+        let mut json = serde_json::to_value(&c).unwrap();
+        json["weights"]
+            .as_object_mut()
+            .unwrap()
+            .remove("photometric_band");
+        let old: TrainConfig = serde_json::from_value(json).unwrap();
+        assert_eq!(old.weights.photometric_band, 0);
+        let cap = crate::views::MASK_EDGE_CAP as u32;
+        for (mask_band, photometric_band) in [(cap - 1, 0), (0, cap - 1)] {
+            let mut ok = c.clone();
+            ok.weights.mask_band = mask_band;
+            ok.weights.photometric_band = photometric_band;
+            assert!(ok.validate().is_ok());
+        }
+        for (mask_band, photometric_band, name) in [
+            (cap, 0, "weights.mask_band"),
+            (0, cap, "weights.photometric_band"),
+        ] {
+            let mut bad = c.clone();
+            bad.weights.mask_band = mask_band;
+            bad.weights.photometric_band = photometric_band;
+            let e = bad.validate().unwrap_err();
+            assert!(e.contains(name), "{e}");
+        }
     }
 
     #[test]

@@ -17,7 +17,7 @@ use gtsr_render_kernels::cpu::{KernelTimes, kernel_times};
 use rand::{RngExt, SeedableRng, rngs::StdRng};
 use serde::{Deserialize, Serialize};
 
-use crate::config::{Init, TrainConfig};
+use crate::config::{Init, LossWeights, TrainConfig};
 use crate::densify::{DensifyReport, DensifyStats, densify_and_prune, reset_opacity};
 use crate::error::ModelError;
 use crate::gaussians::{GaussianSet, HostSet, ParamKind, SetKind, host_set_from_points, host_vec};
@@ -172,6 +172,12 @@ impl Trainer {
     /// The configuration.
     pub fn config(&self) -> &TrainConfig {
         &self.config
+    }
+
+    /// Replaces the loss weights, e.g. to see how other terms would push a checkpoint's model;
+    /// nothing else in the trainer's state depends on them.
+    pub fn set_loss_weights(&mut self, weights: LossWeights) {
+        self.config.weights = weights;
     }
 
     /// The model (autodiff leaves).
@@ -612,15 +618,19 @@ impl Trainer {
             lap(name);
         };
         let w = &cfg.weights;
-        add(
-            "c_sh",
-            losses::photometric(r.c_sh.clone(), view.rgb.clone(), w.lambda_l1),
-        );
+        let photo_keep = match (&view.mask_edge_px, w.photometric_band) {
+            (Some(edge), band) if band > 0 => {
+                Some(edge.clone().greater_elem(f64::from(band)).float())
+            }
+            _ => None,
+        };
+        let photometric = |render: Tensor<3>| match &photo_keep {
+            Some(keep) => losses::photometric_masked(render, view.rgb.clone(), w.lambda_l1, keep),
+            None => losses::photometric(render, view.rgb.clone(), w.lambda_l1),
+        };
+        add("c_sh", photometric(r.c_sh.clone()));
         if let Some(pbr) = &r.c_pbr {
-            add(
-                "c_pbr",
-                losses::photometric(pbr.clone(), view.rgb.clone(), w.lambda_l1),
-            );
+            add("c_pbr", photometric(pbr.clone()));
         }
         let coverage = r
             .geometry

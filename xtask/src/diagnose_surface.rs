@@ -21,6 +21,7 @@ use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_eval::SignedDistance;
 use gtsr_eval::tsdf::median_pixel_footprint;
 use gtsr_model::checkpoint;
+use gtsr_model::config::LossWeights;
 use gtsr_model::gaussians::{ParamKind, host_vec, logistic};
 use gtsr_model::views::upload_views;
 
@@ -29,7 +30,9 @@ use crate::bench_recon::{ground_truth, scene_name};
 /// Options of `diagnose-surface`.
 #[derive(Args, Debug)]
 pub struct DiagnoseSurfaceArgs {
-    /// The gtsr-train output folder (its `checkpoint.safetensors` and `config.json`).
+    /// The gtsr-train output folder (its `checkpoint.safetensors`, and its `config.json` for the
+    /// resolution and the loss weights: in a copy of the folder, edit the weights to see how
+    /// other terms would push the same model).
     #[arg(long)]
     pub run: PathBuf,
     /// The scene it was trained on (Blender/NeRF with `mesh.ply`).
@@ -121,6 +124,12 @@ pub(crate) fn percentile(sorted: &[f32], q: f64) -> f32 {
 #[derive(serde::Deserialize)]
 struct RunConfig {
     resolution: u32,
+    train: Option<RunTrain>,
+}
+
+#[derive(serde::Deserialize)]
+struct RunTrain {
+    weights: LossWeights,
 }
 
 /// Errors unless every value is finite and positive (`positive`) or at least 0, naming `what`.
@@ -194,6 +203,9 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     let ckpt = args.run.join("checkpoint.safetensors");
     let mut trainer = checkpoint::load(&ckpt, views, &device)
         .with_context(|| format!("loading {}", ckpt.display()))?;
+    if let Some(t) = cfg.train {
+        trainer.set_loss_weights(t.weights);
+    }
     let last = trainer.steps_done().saturating_sub(1);
     if !trainer.is_stage2(last) {
         bail!("{}: the run has not reached stage 2", args.run.display());

@@ -106,3 +106,27 @@ pub fn photometric(render: Tensor<3>, target: Tensor<3>, lambda_l1: f64) -> Tens
     l1(render.clone(), target.clone()) * lambda_l1
         + (ssim(render, target).neg() + 1.0) * (1.0 - lambda_l1)
 }
+
+/// [`photometric`] with the pixels where `keep` (`[H, W]`, 0 or 1) is 0 left out of both its
+/// L1 and its SSIM parts; still the mean over every pixel, so that the term's scale does not
+/// depend on how many are left out. With `keep` all ones it equals [`photometric`]. The
+/// trainer leaves out the pixels beside each view's silhouette
+/// ([`crate::config::LossWeights::photometric_band`]): there a flat surface Gaussian that lies
+/// on a curved surface spills its footprint past the silhouette, and the image term, like the
+/// mask term, pulls it inward.
+pub fn photometric_masked(
+    render: Tensor<3>,
+    target: Tensor<3>,
+    lambda_l1: f64,
+    keep: &Tensor<2>,
+) -> Tensor<1> {
+    let [h, w, _] = render.dims();
+    let l1_map = (render.clone() - target.clone())
+        .abs()
+        .mean_dim(2)
+        .reshape([h, w]);
+    let dssim_map = ssim_map(render, target).neg() + 1.0;
+    (l1_map * lambda_l1 + dssim_map * (1.0 - lambda_l1))
+        .mul(keep.clone())
+        .mean()
+}

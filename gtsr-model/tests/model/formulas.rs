@@ -807,6 +807,39 @@ fn the_mask_band_leaves_out_the_pixels_beside_the_silhouette() {
 }
 
 #[test]
+fn the_photometric_band_leaves_out_the_pixels_it_is_told_to() {
+    let device = Device::ndarray().autodiff();
+    let mut rng = StdRng::seed_from_u64(7);
+    let (h, w) = (6, 9);
+    let mut img = || {
+        let v: Vec<f32> = (0..h * w * 3).map(|_| rng.random::<f32>()).collect();
+        Tensor::<3>::from_data(TensorData::new(v, [h, w, 3]), &device)
+    };
+    let (render, target) = (img(), img());
+    let lambda = 0.2;
+    let ones = Tensor::<2>::ones([h, w], &device);
+    let full = losses::photometric(render.clone(), target.clone(), lambda).into_scalar::<f64>();
+    let all = losses::photometric_masked(render.clone(), target.clone(), lambda, &ones)
+        .into_scalar::<f64>();
+    assert!((full - all).abs() < 1e-6, "{full} against {all}");
+    // Leave out pixel (2, 4): the mean loses exactly that pixel's L1 and 1 - SSIM share.
+    let mut k = vec![1f32; h * w];
+    let p = 2 * w + 4;
+    k[p] = 0.0;
+    let keep = Tensor::<2>::from_data(TensorData::new(k, [h, w]), &device);
+    let part = losses::photometric_masked(render.clone(), target.clone(), lambda, &keep)
+        .into_scalar::<f64>();
+    let (rv, tv) = (host_vec(render.clone()), host_vec(target.clone()));
+    let l1_px = (0..3)
+        .map(|c| f64::from((rv[3 * p + c] - tv[3 * p + c]).abs()))
+        .sum::<f64>()
+        / 3.0;
+    let ssim_px = f64::from(host_vec(losses::ssim_map(render, target))[p]);
+    let want = full - (lambda * l1_px + (1.0 - lambda) * (1.0 - ssim_px)) / (h * w) as f64;
+    assert!((part - want).abs() < 1e-6, "{part} against {want}");
+}
+
+#[test]
 fn the_front_depth_term_makes_the_front_layer_opaque_and_moves_nothing() {
     let device = Device::ndarray().autodiff();
     // Three facing layers of opacity 0.5 at z-depths 3.8, 4.0, 4.2: the blend lies at 3.914, the
