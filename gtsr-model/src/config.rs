@@ -371,8 +371,7 @@ pub struct LossWeights {
     #[arg(skip)]
     pub mask_deficit_only: bool,
     /// The mask term leaves out the pixels within this many pixels of each view's silhouette
-    /// ([`crate::losses::mask_l1_outside_band`]; 0: every pixel counts, as the paper). With
-    /// `--demote-every` it takes the rendered depth onto the surface.
+    /// ([`crate::losses::mask_l1_outside_band`]; 0: every pixel counts, as the paper).
     #[serde(default)]
     #[arg(long = "mask-band", id = "train.weights.mask_band", value_name = "PX", default_value_t = LossWeights::default().mask_band)]
     pub mask_band: u32,

@@ -175,9 +175,16 @@ impl Trainer {
     }
 
     /// Replaces the loss weights, e.g. to see how other terms would push a checkpoint's model;
-    /// nothing else in the trainer's state depends on them.
-    pub fn set_loss_weights(&mut self, weights: LossWeights) {
-        self.config.weights = weights;
+    /// nothing else in the trainer's state depends on them. Weights the configuration's
+    /// checks refuse are refused, and the trainer is left as it was.
+    pub fn set_loss_weights(&mut self, weights: LossWeights) -> Result<(), ModelError> {
+        let config = TrainConfig {
+            weights,
+            ..self.config.clone()
+        };
+        config.validate().map_err(ModelError::Config)?;
+        self.config = config;
+        Ok(())
     }
 
     /// The model (autodiff leaves).
@@ -619,9 +626,7 @@ impl Trainer {
         };
         let w = &cfg.weights;
         let photo_keep = match (&view.mask_edge_px, w.photometric_band) {
-            (Some(edge), band) if band > 0 => {
-                Some(edge.clone().greater_elem(f64::from(band)).float())
-            }
+            (Some(edge), band) if band > 0 => Some(losses::outside_band(edge, f64::from(band))),
             _ => None,
         };
         let photometric = |render: Tensor<3>| match &photo_keep {

@@ -204,7 +204,9 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     let mut trainer = checkpoint::load(&ckpt, views, &device)
         .with_context(|| format!("loading {}", ckpt.display()))?;
     if let Some(t) = cfg.train {
-        trainer.set_loss_weights(t.weights);
+        trainer
+            .set_loss_weights(t.weights)
+            .with_context(|| format!("the loss weights of {}", cfg_path.display()))?;
     }
     let last = trainer.steps_done().saturating_sub(1);
     if !trainer.is_stage2(last) {

@@ -110,10 +110,9 @@ pub fn photometric(render: Tensor<3>, target: Tensor<3>, lambda_l1: f64) -> Tens
 /// [`photometric`] with the pixels where `keep` (`[H, W]`, 0 or 1) is 0 left out of both its
 /// L1 and its SSIM parts; still the mean over every pixel, so that the term's scale does not
 /// depend on how many are left out. With `keep` all ones it equals [`photometric`]. The
-/// trainer leaves out the pixels beside each view's silhouette
-/// ([`crate::config::LossWeights::photometric_band`]): there a flat surface Gaussian that lies
-/// on a curved surface spills its footprint past the silhouette, and the image term, like the
-/// mask term, pulls it inward.
+/// trainer leaves out the pixels beside each view's silhouette with it
+/// ([`crate::config::LossWeights::photometric_band`], [`crate::losses::outside_band`]), so
+/// that a diagnosis can tell which pixels an image term's gradient comes from.
 pub fn photometric_masked(
     render: Tensor<3>,
     target: Tensor<3>,

@@ -44,6 +44,12 @@ pub fn mask_l1(alpha: &Tensor<2>, mask: &Tensor<2>) -> Tensor<1> {
     (alpha.clone() - mask.clone()).abs().mean()
 }
 
+/// 1 where a pixel lies more than `band` pixels from the silhouette, 0 within it (`edge_px`:
+/// [`crate::views::mask_edge_distance`]): the pixels the banded mask and image terms keep.
+pub fn outside_band(edge_px: &Tensor<2>, band: f64) -> Tensor<2> {
+    edge_px.clone().greater_elem(band).float()
+}
+
 /// [`mask_l1`] with the pixels within `band` pixels of the silhouette left out (`edge_px`:
 /// [`crate::views::mask_edge_distance`]); still the mean over every pixel, so that the term's
 /// scale does not depend on the band. There a surface Gaussian that lies on the surface but is
@@ -55,8 +61,7 @@ pub fn mask_l1_outside_band(
     edge_px: &Tensor<2>,
     band: f64,
 ) -> Tensor<1> {
-    let keep = edge_px.clone().greater_elem(band).float();
-    ((alpha.clone() - mask.clone()).abs() * keep).mean()
+    ((alpha.clone() - mask.clone()).abs() * outside_band(edge_px, band)).mean()
 }
 
 /// Mean `max(mask - alpha, 0)`: only missing coverage inside the mask counts, not coverage

@@ -277,3 +277,24 @@ fn scheduled_demotion_runs_through_stage_2_and_keeps_the_interior_cap() {
     assert_eq!(t.model().interior.as_ref().unwrap().len(), 170);
     assert!(t.counters().trimmed > 0);
 }
+
+#[test]
+fn loss_weights_can_be_replaced_but_not_with_refused_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut t, _device) = full_trainer_30(dir.path(), |_| {});
+    let mut w = t.config().weights.clone();
+    w.photometric_band = 2;
+    t.set_loss_weights(w.clone()).unwrap();
+    assert_eq!(t.config().weights, w);
+    let mut bad = w.clone();
+    bad.mask_band = gtsr_model::views::MASK_EDGE_CAP as u32;
+    let e = t.set_loss_weights(bad).unwrap_err().to_string();
+    assert!(e.contains("weights.mask_band"), "{e}");
+    assert_eq!(
+        t.config().weights,
+        w,
+        "a refused change leaves the weights as they were"
+    );
+    let r = t.step().unwrap();
+    assert!(!r.skipped && r.loss.is_finite());
+}
