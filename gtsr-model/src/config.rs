@@ -722,6 +722,15 @@ pub struct TrainConfig {
     #[serde(default = "legacy_blur_px2")]
     #[arg(long = "blur", id = "train.blur_px2", value_name = "PX2", default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).blur_px2, value_parser = parse_non_negative, hide_default_value = true, help_heading = "Training")]
     pub blur_px2: f64,
+    /// The least opacity of a surface Gaussian, `[0, 1)`: its opacity is
+    /// `floor + (1 - floor) logistic(logit)`. 0 (the default) is 3DGS's logistic. Above 0 the
+    /// surface set cannot be a stack of faint layers: each splat hides what lies behind it by at
+    /// least the floor, in the depth and material maps (C_SH still weighs it by Fresnel).
+    /// Pruning and the opacity reset act on the logistic part. An experiment: `config.json`
+    /// only (`gtsr-train --config`).
+    #[serde(default)]
+    #[arg(skip)]
+    pub surface_opacity_floor: f64,
 }
 
 /// The blur of configs written before `blur_px2` was a setting.
@@ -753,6 +762,7 @@ impl TrainConfig {
             coarse_until: 0,
             seed: 0,
             blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
+            surface_opacity_floor: 0.0,
         };
         c.set_schedule(iterations);
         c
@@ -877,6 +887,12 @@ impl TrainConfig {
         }
         if !(0.0..=1.0).contains(&self.f0) {
             bad.push(format!("f0 must be in [0, 1], got {}", self.f0));
+        }
+        if !(0.0..1.0).contains(&self.surface_opacity_floor) {
+            bad.push(format!(
+                "surface_opacity_floor must be in [0, 1), got {}",
+                self.surface_opacity_floor
+            ));
         }
         if !(0.0..1.0).contains(&self.min_roughness) {
             bad.push(format!(
@@ -1017,6 +1033,29 @@ mod tests {
             bad.weights.photometric_band = photometric_band;
             let e = bad.validate().unwrap_err();
             assert!(e.contains(name), "{e}");
+        }
+    }
+
+    #[test]
+    fn the_surface_opacity_floor_is_off_by_default_and_below_one() {
+        let c = TrainConfig::for_iterations(Components::FULL, 100);
+        assert_eq!(c.surface_opacity_floor, 0.0);
+        let mut json = serde_json::to_value(&c).unwrap();
+        json.as_object_mut()
+            .unwrap()
+            .remove("surface_opacity_floor");
+        let old: TrainConfig = serde_json::from_value(json).unwrap();
+        assert_eq!(old.surface_opacity_floor, 0.0);
+        for ok in [0.0, 0.5, 0.99] {
+            let mut cfg = c.clone();
+            cfg.surface_opacity_floor = ok;
+            assert!(cfg.validate().is_ok(), "{ok}");
+        }
+        for bad in [1.0, -0.1, f64::NAN] {
+            let mut cfg = c.clone();
+            cfg.surface_opacity_floor = bad;
+            let e = cfg.validate().unwrap_err();
+            assert!(e.contains("surface_opacity_floor"), "{e}");
         }
     }
 

@@ -2,7 +2,8 @@
 //! `x y z nx ny nz f_dc_* f_rest_* opacity scale_* rot_*` layout that splat viewers read, plus
 //! a `gtsr_set` property (0 surface, 1 interior). Values are the raw parameters as 3DGS stores
 //! them (logit opacity, log scale, unnormalised quaternion `w x y z`, SH with `f_rest`
-//! channel-major).
+//! channel-major). A surface set trained with an opacity floor is written with the plain
+//! logits of its opacities, so that a viewer's logistic gives them back.
 //!
 //! The splats are written in the dataset's own frame: a scene normalised at load time
 //! ([`gtsr_data::Normalisation`], a uniform scale and a shift) is mapped back, so the file
@@ -33,7 +34,9 @@ pub fn write_splat_ply(
             to_world.radius
         )));
     }
-    let mut sets = vec![(0.0f32, model.surface.to_host())];
+    let mut surface = model.surface.to_host();
+    surface.unfloor_opacity(model.surface_opacity_floor);
+    let mut sets = vec![(0.0f32, surface)];
     if let Some(int) = &model.interior {
         sets.push((1.0, int.to_host()));
     }

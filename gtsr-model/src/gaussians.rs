@@ -2,7 +2,8 @@
 //! densification, checkpoints and export.
 //!
 //! Every parameter is a `[N, width]` tensor so that densification, pruning and the optimiser
-//! state treat them alike. Activations: `scale = exp(log_scale)`, `opacity = logistic(logit)`,
+//! state treat them alike. Activations: `scale = exp(log_scale)`, `opacity = logistic(logit)`
+//! (for the surface set, optionally above a floor: [`floored_logistic`]),
 //! `base = logistic(logit)`, `roughness = logistic(logit)`; quaternions `(w, x, y, z)` are
 //! normalised where they are used.
 
@@ -99,6 +100,28 @@ pub fn logistic<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     (x.neg().exp() + 1.0).recip()
 }
 
+/// `floor + (1 - floor) logistic(x)`: an opacity that never falls below `floor` (`[0, 1)`; 0
+/// is the plain logistic).
+pub fn floored_logistic<const D: usize>(x: Tensor<D>, floor: f64) -> Tensor<D> {
+    if floor > 0.0 {
+        logistic(x) * (1.0 - floor) + floor
+    } else {
+        logistic(x)
+    }
+}
+
+/// The plain logit of the opacity that `logit` gives under `floor` ([`floored_logistic`]):
+/// what a reader that applies the plain logistic (a splat viewer, the interior set) must be
+/// handed for the same opacity.
+pub fn unfloored_logit(logit: f32, floor: f64) -> f32 {
+    if floor > 0.0 {
+        let o = 1.0 / (1.0 + (-f64::from(logit)).exp());
+        self::logit(floor + (1.0 - floor) * o) as f32
+    } else {
+        logit
+    }
+}
+
 /// Inverse of the logistic.
 pub fn logit(p: f64) -> f64 {
     let p = p.clamp(1e-6, 1.0 - 1e-6);
@@ -133,10 +156,10 @@ impl GaussianSet {
         self.req(ParamKind::LogScales).clone().exp()
     }
 
-    /// `[N]` opacities.
-    pub fn opacities(&self) -> Tensor<1> {
+    /// `[N]` opacities, at least `floor` ([`floored_logistic`]; 0: the plain logistic).
+    pub fn opacities(&self, floor: f64) -> Tensor<1> {
         let n = self.len();
-        logistic(self.req(ParamKind::Opacity).clone()).reshape([n])
+        floored_logistic(self.req(ParamKind::Opacity).clone(), floor).reshape([n])
     }
 
     /// Marks every parameter as requiring gradient (autodiff leaves).
@@ -182,6 +205,16 @@ impl HostSet {
             .iter()
             .find(|(k, _, _)| *k == kind)
             .map(|(_, w, v)| (v.as_slice(), *w))
+    }
+
+    /// Rewrites the opacity logits of a set trained with opacity `floor` as the plain logits of
+    /// the same opacities ([`unfloored_logit`]).
+    pub fn unfloor_opacity(&mut self, floor: f64) {
+        if let Some(v) = self.column_mut(ParamKind::Opacity) {
+            for l in v.iter_mut() {
+                *l = unfloored_logit(*l, floor);
+            }
+        }
     }
 
     /// Mutable values of `kind`.

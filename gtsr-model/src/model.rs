@@ -17,7 +17,7 @@ use gtsr_render_kernels::{AlphaCutoff, Camera, SplatConfig, SplatInputs, render}
 
 use crate::config::Components;
 use crate::error::ModelError;
-use crate::gaussians::{GaussianSet, ParamKind, host_vec, logistic};
+use crate::gaussians::{GaussianSet, ParamKind, SetKind, host_vec, logistic};
 use crate::geometry::{
     dir_to_camera, facing_normals, quat_to_matrix, to_camera, unbiased_depth, view_dirs,
 };
@@ -40,6 +40,9 @@ pub struct Model {
     pub sh_degree: u32,
     /// Screen-space blur of every render, pixels^2 ([`SplatConfig::blur_px2`]).
     pub blur_px2: f64,
+    /// The least opacity of a surface Gaussian (`[0, 1)`; 0: the plain logistic), as
+    /// [`crate::config::TrainConfig::surface_opacity_floor`].
+    pub surface_opacity_floor: f64,
 }
 
 /// What a render should produce.
@@ -209,6 +212,14 @@ fn radii_and_tiles(aux: Tensor<2>) -> (Vec<f32>, u64) {
 }
 
 impl Model {
+    /// `[N]` opacities of `set`: the surface set's above [`Model::surface_opacity_floor`].
+    pub fn opacities(&self, set: &GaussianSet) -> Tensor<1> {
+        match set.kind {
+            SetKind::Surface => set.opacities(self.surface_opacity_floor),
+            SetKind::Interior => set.opacities(0.0),
+        }
+    }
+
     /// Device of the parameters.
     pub fn device(&self) -> Device {
         self.surface.req(ParamKind::Means).device()
@@ -245,6 +256,7 @@ impl Model {
                 .map(|l| l.clone().set_require_grad(false)),
             sh_degree: self.sh_degree,
             blur_px2: self.blur_px2,
+            surface_opacity_floor: self.surface_opacity_floor,
         }
     }
 
@@ -275,7 +287,7 @@ impl Model {
             normals.then(|| facing_normals(&quat_to_matrix(&quats), &log_scales, &means, centre));
         let n = set.len();
         Prepared {
-            opacities: set.opacities(),
+            opacities: self.opacities(set),
             scales: log_scales.exp(),
             means,
             quats,
@@ -549,7 +561,7 @@ impl Model {
             means,
             quats: set.req(ParamKind::Rotations).clone(),
             scales: set.scales(),
-            opacities: set.opacities(),
+            opacities: self.opacities(set),
             xy_offsets: None,
         };
         let cfg = splat_config(camera, 1, self.blur_px2);

@@ -427,6 +427,7 @@ impl Trainer {
                 .then(|| scalar_param(mean_dist2.max(1e-6).ln(), device)),
             sh_degree: 0,
             blur_px2: config.blur_px2,
+            surface_opacity_floor: config.surface_opacity_floor,
         };
         let cams: Vec<_> = views.iter().map(|v| v.camera.clone()).collect();
         let neighbours = neighbours(&cams, config.neighbour_max_angle_deg);
@@ -1005,6 +1006,7 @@ impl Trainer {
         // The moved rows, less the material columns the interior set does not have.
         let mut extra = surface.reindex(&moved, None);
         extra.kind = interior.kind;
+        extra.unfloor_opacity(self.config.surface_opacity_floor);
         extra
             .columns
             .retain(|(k, _, _)| interior.column(*k).is_some());

@@ -65,7 +65,8 @@ pub struct Evaluation {
 /// off, so the extremes are kept.
 fn mesh_bounds(model: &Model) -> (Vec3, Vec3) {
     use gtsr_model::gaussians::ParamKind;
-    let host = model.surface.to_host();
+    let mut host = model.surface.to_host();
+    host.unfloor_opacity(model.surface_opacity_floor);
     let (m, _) = host.column(ParamKind::Means).expect("means");
     let (o, _) = host.column(ParamKind::Opacity).expect("opacity");
     let min_logit = gtsr_model::gaussians::logit(0.05) as f32;

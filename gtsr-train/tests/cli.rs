@@ -439,6 +439,7 @@ fn help_has_one_heading_per_settings_struct_and_no_experiments() {
         "--hull-inside-distance",
         "--opacity-entropy",
         "--mask-deficit-only",
+        "--surface-opacity-floor",
     ] {
         assert!(!help.contains(gone), "{gone} is an experiment\n{help}");
     }

@@ -22,7 +22,7 @@ use gtsr_eval::SignedDistance;
 use gtsr_eval::tsdf::median_pixel_footprint;
 use gtsr_model::checkpoint;
 use gtsr_model::config::LossWeights;
-use gtsr_model::gaussians::{ParamKind, host_vec, logistic};
+use gtsr_model::gaussians::{ParamKind, host_vec};
 use gtsr_model::views::upload_views;
 
 use crate::bench_recon::{ground_truth, scene_name};
@@ -217,9 +217,7 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     let surface = trainer.model().surface.to_host();
     let (means, _) = surface.column(ParamKind::Means).context("means")?;
     let means: Vec<Vec3> = means.chunks_exact(3).map(Vec3::from_slice).collect();
-    let opacity = host_vec(logistic(
-        trainer.model().surface.req(ParamKind::Opacity).clone(),
-    ));
+    let opacity = host_vec(trainer.model().opacities(&trainer.model().surface));
     let n = means.len();
     let located: Vec<(f32, Vec3)> = means.iter().map(|p| sdf.query(*p)).collect();
     let bins: Vec<usize> = located.iter().map(|(d, _)| bin_of(d / footprint)).collect();

@@ -140,6 +140,7 @@ fn c_sh_matches_direct_evaluation() {
         )),
         sh_degree: 3,
         blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
+        surface_opacity_floor: 0.0,
     };
     let cam = camera();
     let rays = pixel_rays(&cam, &device);
@@ -296,6 +297,46 @@ fn crossing_depth_is_one_layer_of_a_stack() {
     assert!(host_vec(g.coverage).iter().all(|c| *c == 0.0));
 }
 
+/// With a surface opacity floor every surface splat hides what lies behind it by at least the
+/// floor, and the set's plain logits (export, demotion) give the same opacities.
+#[test]
+fn a_surface_opacity_floor_raises_every_surface_opacity_alike() {
+    let device = Device::ndarray();
+    // Two facing layers of logistic part 0.5 at z-depths 3.9 and 4.1; with floor 0.8 each has
+    // opacity 0.8 + 0.2 * 0.5 = 0.9.
+    let (mut model, cam) = facing_stack(&[-0.1, 0.1], &device);
+    let rays = pixel_rays(&cam, &device);
+    let plain = model.render_depth(&cam, &rays).unwrap();
+    model.surface_opacity_floor = 0.8;
+    let floored = model.render_depth(&cam, &rays).unwrap();
+    let want_depth = (0.9 * 3.9 + 0.09 * 4.1) / 0.99;
+    for (c, d) in host_vec(floored.coverage)
+        .iter()
+        .zip(host_vec(floored.depth))
+    {
+        assert!((f64::from(*c) - 0.99).abs() < 1e-4, "coverage {c}");
+        assert!((f64::from(d) - want_depth).abs() < 1e-3, "depth {d}");
+    }
+    for c in host_vec(plain.coverage) {
+        assert!(
+            (f64::from(c) - 0.75).abs() < 1e-4,
+            "coverage without the floor {c}"
+        );
+    }
+    let opacities = host_vec(model.opacities(&model.surface));
+    assert!(opacities.iter().all(|o| (f64::from(*o) - 0.9).abs() < 1e-6));
+    let mut host = model.surface.to_host();
+    host.unfloor_opacity(model.surface_opacity_floor);
+    let (logits, _) = host.column(ParamKind::Opacity).unwrap();
+    for l in logits {
+        assert!((f64::from(*l) - logit(0.9)).abs() < 1e-4, "plain logit {l}");
+    }
+    // Without a floor the logits are left alone.
+    let mut same = model.surface.to_host();
+    same.unfloor_opacity(0.0);
+    assert_eq!(same, model.surface.to_host());
+}
+
 /// Facing discs (normal along the view axis) at world `z` values `zs`, opacity 0.5, seen
 /// head-on from `(0, 0, -4)`: their plane distances are `4 + z`.
 fn facing_stack(zs: &[f32], device: &Device) -> (Model, Camera) {
@@ -345,6 +386,7 @@ fn surface_only_model(splats: &[Splat], blur_px2: f64, device: &Device) -> Model
         log_light: None,
         sh_degree: 0,
         blur_px2,
+        surface_opacity_floor: 0.0,
     }
 }
 
