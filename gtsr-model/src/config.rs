@@ -912,6 +912,20 @@ impl TrainConfig {
 mod tests {
     use super::*;
 
+    /// `c` as a `config.json` written before the fields `paths` (`"group.field"` or `"field"`)
+    /// existed, read back.
+    fn read_without(c: &TrainConfig, paths: &[&str]) -> TrainConfig {
+        let mut json = serde_json::to_value(c).unwrap();
+        for path in paths {
+            let (group, field) = match path.split_once('.') {
+                Some((g, f)) => (&mut json[g], f),
+                None => (&mut json, *path),
+            };
+            group.as_object_mut().unwrap().remove(field);
+        }
+        serde_json::from_value(json).unwrap()
+    }
+
     #[test]
     fn opacity_resets_stop_before_the_end_of_densification() {
         let c = TrainConfig::for_iterations(Components::FULL, 1500);
@@ -938,12 +952,7 @@ mod tests {
             .collect();
         assert_eq!((c.stage2_start, early), (350, vec![150, 300]));
         // A config written before `reset_until` existed resets as it did.
-        let mut json = serde_json::to_value(&c).unwrap();
-        json["densify"]
-            .as_object_mut()
-            .unwrap()
-            .remove("reset_until");
-        let old: TrainConfig = serde_json::from_value(json).unwrap();
+        let old = read_without(&c, &["densify.reset_until"]);
         assert!((1..=c.iterations).all(|s| old.densify.resets_after(s) == d.resets_after(s)));
     }
 
@@ -958,13 +967,14 @@ mod tests {
         assert_eq!(trims.last(), Some(&700));
         assert_eq!(trims.len(), 14);
         // Configurations written before the trim existed read with it off.
-        let mut json =
-            serde_json::to_value(TrainConfig::for_iterations(Components::FULL, 10)).unwrap();
-        let obj = json["densify"].as_object_mut().unwrap();
-        obj.remove("trim_every");
-        obj.remove("trim_min_views");
-        obj.remove("trim_transmittance");
-        let back: TrainConfig = serde_json::from_value(json).unwrap();
+        let back = read_without(
+            &TrainConfig::for_iterations(Components::FULL, 10),
+            &[
+                "densify.trim_every",
+                "densify.trim_min_views",
+                "densify.trim_transmittance",
+            ],
+        );
         assert_eq!(
             (back.densify.trim_every, back.densify.trim_min_views),
             (0, 2)
@@ -990,12 +1000,14 @@ mod tests {
         assert_eq!(at.last(), Some(&1451));
         assert_eq!(at.len(), 23);
         // Configurations written before the demotion existed read with it off.
-        let mut json = serde_json::to_value(&c).unwrap();
-        let obj = json["densify"].as_object_mut().unwrap();
-        obj.remove("demote_every");
-        obj.remove("demote_min_views");
-        obj.remove("demote_transmittance");
-        let back: TrainConfig = serde_json::from_value(json).unwrap();
+        let back = read_without(
+            &c,
+            &[
+                "densify.demote_every",
+                "densify.demote_min_views",
+                "densify.demote_transmittance",
+            ],
+        );
         assert_eq!(back.densify, c.densify);
         // Out-of-range settings and a demotion without an interior set are refused.
         let mut bad = c.clone();
@@ -1010,12 +1022,7 @@ mod tests {
     fn silhouette_bands_are_off_by_default_and_kept_below_the_measured_distance() {
         let c = TrainConfig::for_iterations(Components::FULL, 100);
         assert_eq!((c.weights.mask_band, c.weights.photometric_band), (0, 0));
-        let mut json = serde_json::to_value(&c).unwrap();
-        json["weights"]
-            .as_object_mut()
-            .unwrap()
-            .remove("photometric_band");
-        let old: TrainConfig = serde_json::from_value(json).unwrap();
+        let old = read_without(&c, &["weights.photometric_band"]);
         assert_eq!(old.weights.photometric_band, 0);
         let cap = crate::views::MASK_EDGE_CAP as u32;
         for (mask_band, photometric_band) in [(cap - 1, 0), (0, cap - 1)] {
@@ -1040,11 +1047,7 @@ mod tests {
     fn the_surface_opacity_floor_is_off_by_default_and_below_one() {
         let c = TrainConfig::for_iterations(Components::FULL, 100);
         assert_eq!(c.surface_opacity_floor, 0.0);
-        let mut json = serde_json::to_value(&c).unwrap();
-        json.as_object_mut()
-            .unwrap()
-            .remove("surface_opacity_floor");
-        let old: TrainConfig = serde_json::from_value(json).unwrap();
+        let old = read_without(&c, &["surface_opacity_floor"]);
         assert_eq!(old.surface_opacity_floor, 0.0);
         for ok in [0.0, 0.5, 0.99] {
             let mut cfg = c.clone();
@@ -1063,9 +1066,7 @@ mod tests {
     fn blur_defaults_to_the_pixel_box_and_old_configs_keep_3dgs_blur() {
         let c = TrainConfig::for_iterations(Components::FULL, 100);
         assert_eq!(c.blur_px2, gtsr_render_kernels::PIXEL_BOX_BLUR_PX2);
-        let mut json = serde_json::to_value(&c).unwrap();
-        json.as_object_mut().unwrap().remove("blur_px2");
-        let old: TrainConfig = serde_json::from_value(json).unwrap();
+        let old = read_without(&c, &["blur_px2"]);
         assert_eq!(old.blur_px2, gtsr_render_kernels::BLUR_PX2);
         for bad in [-0.5, f64::NAN] {
             let e = TrainConfig {
