@@ -155,6 +155,42 @@ fn meshes_are_closed_and_match_analytic_volume() {
     }
 }
 
+/// The dented sphere's dent is a concavity no silhouette sees: points in it lie outside the
+/// shape, yet every ray through them from outside hits the shape, so the masks' hull fills
+/// them. Its radial description agrees with the membership test.
+#[test]
+fn the_dent_is_outside_the_shape_but_inside_every_silhouette() {
+    use gtsr_data::synthetic::shapes::{dent_axis, dented_sphere_radius};
+    let shape = ShapeKind::DentedSphere;
+    let axis = dent_axis();
+    // The dent's floor lies 0.25 below the sphere; its rim plane about 0.094 below.
+    assert!((dented_sphere_radius(axis) - 0.75).abs() < 1e-5);
+    let mut rng = gtsr_data::synthetic::rng::Rng::new(5, 0, 0, 0);
+    let mut unit = || loop {
+        let v = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
+        if v.length_squared() > 1e-4 && v.length_squared() <= 1.0 {
+            return v.normalize();
+        }
+    };
+    for depth in [0.8f32, 0.85, 0.88] {
+        let p = axis * depth;
+        assert!(!shape.contains(p), "{depth}: the dent should be empty");
+        for _ in 0..2000 {
+            let d = unit();
+            assert!(
+                shape.ray_hits(p - 4.0 * d, d),
+                "{depth}: a ray along {d} through the dent misses the shape"
+            );
+        }
+    }
+    for _ in 0..2000 {
+        let u = unit();
+        let r = dented_sphere_radius(u);
+        assert!(shape.contains(u * (r - 1e-3)), "{u}: inside the radius");
+        assert!(!shape.contains(u * (r + 1e-3)), "{u}: outside the radius");
+    }
+}
+
 /// The same seed gives the same bytes whatever the thread count; another seed differs.
 #[test]
 fn deterministic_for_a_seed() {

@@ -731,6 +731,14 @@ pub struct TrainConfig {
     #[serde(default)]
     #[arg(skip)]
     pub surface_opacity_floor: f64,
+    /// C_PBR's scattering map as a diffuse lobe under the point light
+    /// ([`crate::pbr::ShadingParams::scatter_lambert`]): the interior set's view-independent
+    /// colour times the irradiance `n . v L / dist^2` of the surface in front of it. Off (the
+    /// default): the paper's view-dependent scattering colour. An experiment: `config.json`
+    /// only (`gtsr-train --config`).
+    #[serde(default)]
+    #[arg(skip)]
+    pub scatter_lambert: bool,
 }
 
 /// The blur of configs written before `blur_px2` was a setting.
@@ -763,6 +771,7 @@ impl TrainConfig {
             seed: 0,
             blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
             surface_opacity_floor: 0.0,
+            scatter_lambert: false,
         };
         c.set_schedule(iterations);
         c
@@ -1060,6 +1069,21 @@ mod tests {
             let e = cfg.validate().unwrap_err();
             assert!(e.contains("surface_opacity_floor"), "{e}");
         }
+    }
+
+    #[test]
+    fn the_lit_scattering_map_is_off_by_default_and_in_old_configs() {
+        let c = TrainConfig::for_iterations(Components::FULL, 100);
+        assert!(!c.scatter_lambert);
+        let mut on = c.clone();
+        on.scatter_lambert = true;
+        assert!(!read_without(&on, &["scatter_lambert"]).scatter_lambert);
+        let json = serde_json::to_string(&on).unwrap();
+        assert!(
+            serde_json::from_str::<TrainConfig>(&json)
+                .unwrap()
+                .scatter_lambert
+        );
     }
 
     #[test]

@@ -452,15 +452,17 @@ impl Model {
             }
         });
 
-        let scatter = match (&int_prepared, pbr) {
-            (Some(ip), true) => {
-                let out = splat(
-                    ip,
-                    ip.opacities.clone(),
-                    ip.colours.clone(),
-                    camera,
-                    self.blur_px2,
-                )?;
+        let scatter = match (&int_prepared, interior, pbr) {
+            (Some(ip), Some(set), true) => {
+                // A diffuse scattering lobe is lit by the shading, not by the view: its colour
+                // is the interior set's degree-0 one.
+                let colours = if opts.shading.scatter_lambert {
+                    let dirs = view_dirs(&ip.means, camera.centre());
+                    sh::colours(set.req(ParamKind::ShDc), None, &dirs, 0)
+                } else {
+                    ip.colours.clone()
+                };
+                let out = splat(ip, ip.opacities.clone(), colours, camera, self.blur_px2)?;
                 passes += 1;
                 tile_splats += radii_and_tiles(out.aux).1;
                 Some(out.image)

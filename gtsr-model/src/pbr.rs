@@ -9,6 +9,8 @@
 //! - `C_PBR = A (C_s + gamma C_d) + (1 - A F) C_scatter`, with `A` the surface coverage (alpha of
 //!   the surface pass): on covered pixels (`A = 1`) this is the paper's
 //!   `C_s + gamma C_d + (1 - F) C_scatter`; where there is no surface only scattering remains.
+//! - With [`ShadingParams::scatter_lambert`] (an experiment, off by default) `C_scatter` is
+//!   lit as a diffuse lobe: multiplied by `A c L / dist^2 + (1 - A)`.
 //!
 //! Material maps arrive premultiplied by coverage; they are divided by `max(A, COVER_MIN)`.
 
@@ -55,6 +57,14 @@ pub struct ShadingParams {
     pub gamma: f64,
     /// Lower roughness clamp.
     pub min_roughness: f64,
+    /// Shade the scattering map as a diffuse lobe lit by the point light: on covered pixels
+    /// multiply it by `c L / dist^2`, the irradiance the light at the camera gives a surface of
+    /// normal `n` (`c = n . v`), and let the model render it from the interior set's
+    /// view-independent (degree 0) colour. Off: the paper's scattering map, the interior set's
+    /// view-dependent SH colour as it is, which can itself carry the `c` of every view (over
+    /// the views that see a surface point, its `c` is a degree-1 SH of the view direction), so
+    /// the normals need not explain the shading.
+    pub scatter_lambert: bool,
 }
 
 /// The shading terms, kept apart for inspection and tests.
@@ -91,17 +101,23 @@ pub fn shade(g: &GBuffer, light: Tensor<2>, p: ShadingParams) -> Shaded {
     let k = (r + 1.0).powi_scalar(2) / 8.0;
     let g1 = c.clone() / (c.clone() * (k.clone().neg() + 1.0) + k);
     let geo = g1.clone() * g1;
-    let f = schlick(c, p.f0);
+    let f = schlick(c.clone(), p.f0);
     let dist2 = (g.depth.clone() * g.depth.clone() * ray_len2).clamp_min(DIST2_MIN);
     let radiance = light.reshape([1, 1]) / dist2;
     let spec = f.clone() * d * geo / (c2 * 4.0) * radiance.clone();
     let base = g.base.clone() / cover_div.reshape([h, w, 1]);
     let diffuse =
-        base * (f.clone() * f.clone() * radiance / std::f64::consts::PI).reshape([h, w, 1]);
+        base * (f.clone() * f.clone() * radiance.clone() / std::f64::consts::PI).reshape([h, w, 1]);
     let cov = g.coverage.clone().reshape([h, w, 1]);
     let mut colour = (diffuse * p.gamma + spec.clone().reshape([h, w, 1])) * cov.clone();
     if let Some(s) = &g.scatter {
-        colour = colour + s.clone() * ((f.clone().reshape([h, w, 1]) * cov).neg() + 1.0);
+        let mut s = s.clone();
+        if p.scatter_lambert {
+            // A (c L / dist^2) + (1 - A): lit where there is a surface, as it is elsewhere.
+            let lit = (c.clone() * radiance.clone() - 1.0) * g.coverage.clone() + 1.0;
+            s = s * lit.reshape([h, w, 1]);
+        }
+        colour = colour + s * ((f.clone().reshape([h, w, 1]) * cov).neg() + 1.0);
     }
     Shaded {
         colour,
@@ -156,7 +172,12 @@ pub fn shade_pixel(
         let diff = base[k] / cd / std::f64::consts::PI * f * f * rad;
         out[k] = coverage * (spec + p.gamma * diff);
         if let Some(s) = scatter {
-            out[k] += (1.0 - coverage * f) * s[k];
+            let lit = if p.scatter_lambert {
+                coverage * c * rad + 1.0 - coverage
+            } else {
+                1.0
+            };
+            out[k] += (1.0 - coverage * f) * s[k] * lit;
         }
     }
     out

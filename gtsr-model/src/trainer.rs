@@ -538,6 +538,7 @@ impl Trainer {
                 f0: self.config.f0,
                 gamma: self.config.pbr_gamma,
                 min_roughness: self.config.min_roughness,
+                scatter_lambert: self.config.scatter_lambert,
             },
             pbr_srgb: self.config.pbr_srgb_output,
             spread: false,

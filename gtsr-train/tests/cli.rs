@@ -440,6 +440,7 @@ fn help_has_one_heading_per_settings_struct_and_no_experiments() {
         "--opacity-entropy",
         "--mask-deficit-only",
         "--surface-opacity-floor",
+        "--scatter-lambert",
     ] {
         assert!(!help.contains(gone), "{gone} is an experiment\n{help}");
     }

@@ -11,6 +11,10 @@
 //!   ellipsoids.
 //! * [`ShapeKind::TorusKnot`]: tube of radius 0.1 around a (2,3) torus knot (thin
 //!   features); tube mesh with rotation-minimising frames.
+//! * [`ShapeKind::DentedSphere`]: unit sphere less a ball (radius [`DENT_RADIUS`], centre
+//!   [`DENT_CENTRE`] from the origin along [`dent_axis`]): a smooth dent 0.25 deep and about
+//!   0.85 across that no silhouette sees; icosphere mesh with its vertices moved radially onto
+//!   the dent.
 
 use std::collections::HashMap;
 use std::f32::consts::TAU;
@@ -31,6 +35,8 @@ pub enum ShapeKind {
     Bear,
     /// Thin tube around a (2,3) torus knot.
     TorusKnot,
+    /// Unit sphere with a wide spherical dent, a concavity hidden from every silhouette.
+    DentedSphere,
 }
 
 /// Torus major radius.
@@ -39,15 +45,25 @@ pub const TORUS_R: f32 = 0.7;
 pub const TORUS_TUBE: f32 = 0.3;
 /// Torus-knot tube radius.
 pub const KNOT_TUBE: f32 = 0.1;
+/// Distance from the origin to the centre of the ball the dented sphere's dent is cut with.
+pub const DENT_CENTRE: f32 = 1.4;
+/// Radius of that ball: the dent is `1 - (DENT_CENTRE - DENT_RADIUS)` = 0.25 deep.
+pub const DENT_RADIUS: f32 = 0.65;
+
+/// The direction the dented sphere's dent faces (unit), oblique to the cameras' up axis.
+pub fn dent_axis() -> Vec3 {
+    Vec3::new(1.0, -1.0, 1.0).normalize()
+}
 const KNOT_SCALE: f32 = (1.0 - KNOT_TUBE) / 3.0;
 
 impl ShapeKind {
     /// Every shape.
-    pub const ALL: [ShapeKind; 4] = [
+    pub const ALL: [ShapeKind; 5] = [
         ShapeKind::Sphere,
         ShapeKind::Torus,
         ShapeKind::Bear,
         ShapeKind::TorusKnot,
+        ShapeKind::DentedSphere,
     ];
 
     /// The name used on the command line and in `meta.json`.
@@ -57,6 +73,7 @@ impl ShapeKind {
             ShapeKind::Torus => "torus",
             ShapeKind::Bear => "bear",
             ShapeKind::TorusKnot => "torus_knot",
+            ShapeKind::DentedSphere => "dented_sphere",
         }
     }
 
@@ -67,6 +84,7 @@ impl ShapeKind {
             ShapeKind::Torus => tube_mesh(torus_curve, TORUS_TUBE, 256, 96),
             ShapeKind::Bear => bear_mesh(112),
             ShapeKind::TorusKnot => tube_mesh(knot_curve, KNOT_TUBE, 1024, 40),
+            ShapeKind::DentedSphere => dented_sphere_mesh(6),
         }
     }
 
@@ -81,6 +99,10 @@ impl ShapeKind {
             ShapeKind::Bear => bear_ellipsoids().iter().any(|e| e.implicit(p) <= 0.0),
             ShapeKind::TorusKnot => {
                 curve_min(knot_curve, |c| (c - p).length_squared()) <= KNOT_TUBE * KNOT_TUBE
+            }
+            ShapeKind::DentedSphere => {
+                p.length_squared() <= 1.0
+                    && (p - dent_axis() * DENT_CENTRE).length_squared() > DENT_RADIUS * DENT_RADIUS
             }
         }
     }
@@ -104,6 +126,17 @@ impl ShapeKind {
             ShapeKind::Torus => curve_min(torus_curve, line_d2) <= TORUS_TUBE * TORUS_TUBE,
             ShapeKind::TorusKnot => curve_min(knot_curve, line_d2) <= KNOT_TUBE * KNOT_TUBE,
             ShapeKind::Bear => bear_ellipsoids().iter().any(|e| e.ray_hits(o, d)),
+            // Hit unless the ray's chord through the sphere lies wholly inside the cut ball.
+            ShapeKind::DentedSphere => match ball_chord(o, d, Vec3::ZERO, 1.0) {
+                None => false,
+                Some((t0, t1)) => {
+                    t1 > 0.0
+                        && match ball_chord(o, d, dent_axis() * DENT_CENTRE, DENT_RADIUS) {
+                            None => true,
+                            Some((s0, s1)) => !(s0 <= t0 && s1 >= t1),
+                        }
+                }
+            },
         }
     }
 }
@@ -120,8 +153,37 @@ impl std::str::FromStr for ShapeKind {
         ShapeKind::ALL
             .into_iter()
             .find(|k| k.name() == s || (s == "knot" && *k == ShapeKind::TorusKnot))
-            .ok_or_else(|| format!("unknown shape '{s}' (sphere, torus, bear, torus_knot)"))
+            .ok_or_else(|| {
+                format!("unknown shape '{s}' (sphere, torus, bear, torus_knot, dented_sphere)")
+            })
     }
+}
+
+/// The interval `[t0, t1]` of the line `o + t d` (`d` unit) inside the ball `|p - c| <= r`.
+fn ball_chord(o: Vec3, d: Vec3, c: Vec3, r: f32) -> Option<(f32, f32)> {
+    let oc = o - c;
+    let b = oc.dot(d);
+    let disc = b * b - (oc.length_squared() - r * r);
+    (disc >= 0.0).then(|| (-b - disc.sqrt(), -b + disc.sqrt()))
+}
+
+/// The dented sphere's radius along the unit direction `u`: 1, or where the ray from the
+/// origin first enters the cut ball if that is nearer. The shape is star-shaped about the
+/// origin (the ball's centre lies outside the unit sphere), so this describes it exactly.
+pub fn dented_sphere_radius(u: Vec3) -> f32 {
+    match ball_chord(Vec3::ZERO, u, dent_axis() * DENT_CENTRE, DENT_RADIUS) {
+        Some((t_in, _)) if t_in > 0.0 && t_in < 1.0 => t_in,
+        _ => 1.0,
+    }
+}
+
+/// An icosphere with `levels` subdivisions, every vertex moved radially onto the dent.
+fn dented_sphere_mesh(levels: u32) -> TriMesh {
+    let mut m = icosphere(levels);
+    for p in m.positions.iter_mut() {
+        *p *= dented_sphere_radius(*p);
+    }
+    m
 }
 
 fn torus_curve(t: f32) -> Vec3 {

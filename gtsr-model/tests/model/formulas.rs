@@ -17,6 +17,7 @@ const SHADING: ShadingParams = ShadingParams {
     f0: 0.04,
     gamma: 0.3,
     min_roughness: 0.08,
+    scatter_lambert: false,
 };
 
 fn camera() -> Camera {
@@ -123,6 +124,22 @@ fn direct_inputs(set: &HostSet, cam: &Camera, degree: u32, fresnel: bool) -> (Ve
     (opac, colours)
 }
 
+/// The full model (SH degree 3, light 3 in log) over two host sets.
+fn full_model(surf: &HostSet, int: &HostSet, device: &Device) -> Model {
+    Model {
+        components: Components::FULL,
+        surface: surf.to_device(device),
+        interior: Some(int.to_device(device)),
+        log_light: Some(Tensor::from_data(
+            TensorData::new(vec![3.0f32], [1, 1]),
+            device,
+        )),
+        sh_degree: 3,
+        blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
+        surface_opacity_floor: 0.0,
+    }
+}
+
 #[test]
 fn c_sh_matches_direct_evaluation() {
     let device = Device::ndarray();
@@ -130,18 +147,7 @@ fn c_sh_matches_direct_evaluation() {
     let mut rng = StdRng::seed_from_u64(7);
     let surf = random_set(SetKind::Surface, 24, &comps, &mut rng, true);
     let int = random_set(SetKind::Interior, 12, &comps, &mut rng, false);
-    let model = Model {
-        components: comps,
-        surface: surf.to_device(&device),
-        interior: Some(int.to_device(&device)),
-        log_light: Some(Tensor::from_data(
-            TensorData::new(vec![3.0f32], [1, 1]),
-            &device,
-        )),
-        sh_degree: 3,
-        blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
-        surface_opacity_floor: 0.0,
-    };
+    let model = full_model(&surf, &int, &device);
     let cam = camera();
     let rays = pixel_rays(&cam, &device);
     let opts = RenderOptions {
@@ -202,6 +208,54 @@ fn c_sh_matches_direct_evaluation() {
     );
     let energy: f64 = direct.iter().map(|v| v.abs()).sum();
     assert!(energy > 1.0, "the scene must cover pixels");
+}
+
+/// Lit as a diffuse lobe, the scattering map is the interior set's degree-0 colour: the
+/// same as the paper's map of a set without its higher SH coefficients, and not the paper's
+/// map of the set itself.
+#[test]
+fn the_lit_scattering_map_takes_the_interior_sets_degree_zero_colour() {
+    let device = Device::ndarray();
+    let comps = Components::FULL;
+    let mut rng = StdRng::seed_from_u64(9);
+    let surf = random_set(SetKind::Surface, 24, &comps, &mut rng, true);
+    let int = random_set(SetKind::Interior, 12, &comps, &mut rng, false);
+    let mut int_dc = int.clone();
+    int_dc
+        .column_mut(ParamKind::ShRest)
+        .unwrap()
+        .iter_mut()
+        .for_each(|v| *v = 0.0);
+    let model = |int: &HostSet| full_model(&surf, int, &device);
+    let cam = camera();
+    let rays = pixel_rays(&cam, &device);
+    let scatter = |m: &Model, scatter_lambert: bool| {
+        let opts = RenderOptions {
+            stage2: true,
+            geometry: true,
+            track_offsets: false,
+            shading: ShadingParams {
+                scatter_lambert,
+                ..SHADING
+            },
+            pbr_srgb: false,
+            spread: false,
+        };
+        host_vec(m.render(&cam, &rays, opts).unwrap().scatter.unwrap())
+    };
+    let worst = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max)
+    };
+    let lit = scatter(&model(&int), true);
+    assert!(worst(&lit, &scatter(&model(&int_dc), false)) < 1e-6);
+    let paper = scatter(&model(&int), false);
+    assert!(
+        worst(&lit, &paper) > 1e-2,
+        "the higher coefficients should show in the paper's map"
+    );
 }
 
 #[test]
@@ -537,79 +591,86 @@ fn pbr_matches_per_pixel_evaluation_and_stays_finite_at_extremes() {
         scatter.extend((0..3).map(|_| rng.random_range(0.0..1.0f32)));
         rays.extend(ray);
     }
-    let leaf3 = |v: &Vec<f32>| {
-        Tensor::<3>::from_data(TensorData::new(v.clone(), [h, w, 3]), &device).require_grad()
-    };
-    let leaf2 = |v: &Vec<f32>| {
-        Tensor::<2>::from_data(TensorData::new(v.clone(), [h, w]), &device).require_grad()
-    };
-    let gb = GBuffer {
-        normal: leaf3(&normal),
-        depth: leaf2(&depth),
-        coverage: leaf2(&cov),
-        base: leaf3(&base),
-        roughness: leaf2(&rough),
-        scatter: Some(leaf3(&scatter)),
-        rays: Tensor::from_data(TensorData::new(rays.clone(), [h, w, 3]), &device),
-    };
-    let light =
-        Tensor::<2>::from_data(TensorData::new(vec![12.0f32], [1, 1]), &device).require_grad();
-    let out = pbr::shade(&gb, light.clone(), SHADING);
-    let got = host_vec(out.colour.clone());
-    for p in 0..h * w {
-        let f = |v: &Vec<f32>, k: usize| f64::from(v[3 * p + k]);
-        let want = pbr::shade_pixel(
-            [f(&normal, 0), f(&normal, 1), f(&normal, 2)],
-            f64::from(depth[p]),
-            f64::from(cov[p]),
-            [f(&base, 0), f(&base, 1), f(&base, 2)],
-            f64::from(rough[p]),
-            Some([f(&scatter, 0), f(&scatter, 1), f(&scatter, 2)]),
-            [f(&rays, 0), f(&rays, 1), f(&rays, 2)],
-            12.0,
-            SHADING,
-        );
-        for k in 0..3 {
-            let g = f64::from(got[3 * p + k]);
+    // The paper's scattering map, and the same lit as a diffuse lobe.
+    for scatter_lambert in [false, true] {
+        let shading = ShadingParams {
+            scatter_lambert,
+            ..SHADING
+        };
+        let leaf3 = |v: &Vec<f32>| {
+            Tensor::<3>::from_data(TensorData::new(v.clone(), [h, w, 3]), &device).require_grad()
+        };
+        let leaf2 = |v: &Vec<f32>| {
+            Tensor::<2>::from_data(TensorData::new(v.clone(), [h, w]), &device).require_grad()
+        };
+        let gb = GBuffer {
+            normal: leaf3(&normal),
+            depth: leaf2(&depth),
+            coverage: leaf2(&cov),
+            base: leaf3(&base),
+            roughness: leaf2(&rough),
+            scatter: Some(leaf3(&scatter)),
+            rays: Tensor::from_data(TensorData::new(rays.clone(), [h, w, 3]), &device),
+        };
+        let light =
+            Tensor::<2>::from_data(TensorData::new(vec![12.0f32], [1, 1]), &device).require_grad();
+        let out = pbr::shade(&gb, light.clone(), shading);
+        let got = host_vec(out.colour.clone());
+        for p in 0..h * w {
+            let f = |v: &Vec<f32>, k: usize| f64::from(v[3 * p + k]);
+            let want = pbr::shade_pixel(
+                [f(&normal, 0), f(&normal, 1), f(&normal, 2)],
+                f64::from(depth[p]),
+                f64::from(cov[p]),
+                [f(&base, 0), f(&base, 1), f(&base, 2)],
+                f64::from(rough[p]),
+                Some([f(&scatter, 0), f(&scatter, 1), f(&scatter, 2)]),
+                [f(&rays, 0), f(&rays, 1), f(&rays, 2)],
+                12.0,
+                shading,
+            );
+            for k in 0..3 {
+                let g = f64::from(got[3 * p + k]);
+                assert!(
+                    (g - want[k]).abs() <= 1e-4 * want[k].abs().max(1.0),
+                    "lambert {scatter_lambert}, pixel {p} channel {k}: {g} vs {}",
+                    want[k]
+                );
+            }
+        }
+        let grads = out.colour.sum().backward();
+        for (name, g) in [
+            ("normal", gb.normal.grad(&grads).map(|g| g.into_data())),
+            ("base", gb.base.grad(&grads).map(|g| g.into_data())),
+            (
+                "scatter",
+                gb.scatter
+                    .as_ref()
+                    .unwrap()
+                    .grad(&grads)
+                    .map(|g| g.into_data()),
+            ),
+        ] {
+            let v: Vec<f32> = g.unwrap().convert::<f32>().into_vec().unwrap();
             assert!(
-                (g - want[k]).abs() <= 1e-4 * want[k].abs().max(1.0),
-                "pixel {p} channel {k}: {g} vs {}",
-                want[k]
+                v.iter().all(|x| x.is_finite()),
+                "{name} gradient not finite: {v:?}"
             );
         }
+        for (name, g) in [
+            ("depth", gb.depth.grad(&grads)),
+            ("coverage", gb.coverage.grad(&grads)),
+            ("roughness", gb.roughness.grad(&grads)),
+        ] {
+            let v = host_vec(g.unwrap());
+            assert!(
+                v.iter().all(|x| x.is_finite()),
+                "{name} gradient not finite: {v:?}"
+            );
+        }
+        let gl: f32 = light.grad(&grads).unwrap().into_scalar();
+        assert!(gl.is_finite() && gl > 0.0);
     }
-    let grads = out.colour.sum().backward();
-    for (name, g) in [
-        ("normal", gb.normal.grad(&grads).map(|g| g.into_data())),
-        ("base", gb.base.grad(&grads).map(|g| g.into_data())),
-        (
-            "scatter",
-            gb.scatter
-                .as_ref()
-                .unwrap()
-                .grad(&grads)
-                .map(|g| g.into_data()),
-        ),
-    ] {
-        let v: Vec<f32> = g.unwrap().convert::<f32>().into_vec().unwrap();
-        assert!(
-            v.iter().all(|x| x.is_finite()),
-            "{name} gradient not finite: {v:?}"
-        );
-    }
-    for (name, g) in [
-        ("depth", gb.depth.grad(&grads)),
-        ("coverage", gb.coverage.grad(&grads)),
-        ("roughness", gb.roughness.grad(&grads)),
-    ] {
-        let v = host_vec(g.unwrap());
-        assert!(
-            v.iter().all(|x| x.is_finite()),
-            "{name} gradient not finite: {v:?}"
-        );
-    }
-    let gl: f32 = light.grad(&grads).unwrap().into_scalar();
-    assert!(gl.is_finite() && gl > 0.0);
 }
 
 #[test]
