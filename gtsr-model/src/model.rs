@@ -457,8 +457,7 @@ impl Model {
                 // A diffuse scattering lobe is lit by the shading, not by the view: its colour
                 // is the interior set's degree-0 one.
                 let colours = if opts.shading.scatter_lambert {
-                    let dirs = view_dirs(&ip.means, camera.centre());
-                    sh::colours(set.req(ParamKind::ShDc), None, &dirs, 0)
+                    sh::dc_colours(set.req(ParamKind::ShDc))
                 } else {
                     ip.colours.clone()
                 };

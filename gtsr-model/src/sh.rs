@@ -71,6 +71,17 @@ fn basis_rest_rows(dirs: &Tensor<2>, degree: u32) -> Option<Tensor<2>> {
     Some(Tensor::cat(rows, 0))
 }
 
+/// The view-independent part of the colour, before the clamp: `C0 dc + 0.5`.
+fn dc_term(dc: &Tensor<2>) -> Tensor<2> {
+    dc.clone() * C0 + 0.5
+}
+
+/// RGB colours `[N, 3]` from the DC coefficients alone (degree 0, the same in every
+/// direction): [`colours`] without higher coefficients.
+pub fn dc_colours(dc: &Tensor<2>) -> Tensor<2> {
+    dc_term(dc).clamp_min(0.0)
+}
+
 /// RGB colours `[N, 3]` from DC `[N, 3]` and higher coefficients `[N, (K - 1) * 3]`
 /// (coefficient-major: index `(k - 1) * 3 + channel`), evaluated up to `degree` in the unit
 /// directions `dirs` (from the camera to the Gaussian). As 3DGS: `max(0, sum + 0.5)`.
@@ -80,7 +91,7 @@ pub fn colours(
     dirs: &Tensor<2>,
     degree: u32,
 ) -> Tensor<2> {
-    let mut c = dc.clone() * C0 + 0.5;
+    let mut c = dc_term(dc);
     if let (Some(rest), Some(rows)) = (rest, basis_rest_rows(dirs, degree)) {
         let k = rows.dims()[0];
         let total = rest.dims()[1];
