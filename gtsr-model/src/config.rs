@@ -394,6 +394,14 @@ pub struct LossWeights {
     #[serde(default)]
     #[arg(skip)]
     pub opacity_l1: f64,
+    /// Stage 2: edge-aware smoothness of C_PBR's scattering map
+    /// ([`crate::losses::edge_aware_smoothness`], the material maps' regulariser; not in the
+    /// paper, 0: off). Read with [`TrainConfig::scatter_lambert`], it asks the smooth part of
+    /// the shading to come from the lit lobe `n . v` rather than from the interior colours:
+    /// reflectance piecewise smooth, shading in the normals (the intrinsic-image prior).
+    #[serde(default)]
+    #[arg(skip)]
+    pub smooth_scatter: f64,
 }
 
 impl Default for LossWeights {
@@ -415,6 +423,7 @@ impl Default for LossWeights {
             photometric_band: 0,
             front_depth: 0.0,
             opacity_l1: 0.0,
+            smooth_scatter: 0.0,
         }
     }
 }
@@ -883,6 +892,7 @@ impl TrainConfig {
             ("weights.opacity_entropy", self.weights.opacity_entropy),
             ("weights.front_depth", self.weights.front_depth),
             ("weights.opacity_l1", self.weights.opacity_l1),
+            ("weights.smooth_scatter", self.weights.smooth_scatter),
         ] {
             if !v.is_finite() || v < 0.0 {
                 bad.push(format!("{name} must be finite and non-negative, got {v}"));
@@ -1084,6 +1094,26 @@ mod tests {
                 .unwrap()
                 .scatter_lambert
         );
+    }
+
+    #[test]
+    fn the_scattering_smoothness_is_off_by_default_in_old_configs_and_checked() {
+        let c = TrainConfig::for_iterations(Components::FULL, 100);
+        assert_eq!(c.weights.smooth_scatter, 0.0);
+        let mut on = c.clone();
+        on.weights.smooth_scatter = 0.5;
+        assert_eq!(
+            read_without(&on, &["weights.smooth_scatter"])
+                .weights
+                .smooth_scatter,
+            0.0
+        );
+        let json = serde_json::to_string(&on).unwrap();
+        let back: TrainConfig = serde_json::from_str(&json).unwrap();
+        assert_eq!(back.weights.smooth_scatter, 0.5);
+        on.weights.smooth_scatter = -1.0;
+        let err = on.validate().unwrap_err();
+        assert!(err.contains("weights.smooth_scatter"), "{err}");
     }
 
     #[test]

@@ -738,6 +738,13 @@ impl Trainer {
                     ) * w.interior,
                 );
             }
+            if let (Some(scatter), true) = (&r.scatter, w.smooth_scatter > 0.0) {
+                add(
+                    "smooth_scatter",
+                    losses::edge_aware_smoothness(scatter, &view.smooth_wx, &view.smooth_wy)
+                        * w.smooth_scatter,
+                );
+            }
             if c.smoothness {
                 if let Some(b) = &g.base {
                     add(

@@ -441,6 +441,7 @@ fn help_has_one_heading_per_settings_struct_and_no_experiments() {
         "--mask-deficit-only",
         "--surface-opacity-floor",
         "--scatter-lambert",
+        "--smooth-scatter",
     ] {
         assert!(!help.contains(gone), "{gone} is an experiment\n{help}");
     }

@@ -256,16 +256,8 @@ fn refine_rows(
     };
     let cameras: Vec<gtsr_data::Camera> = scene.train.iter().map(|v| v.camera).collect();
     let footprint = median_pixel_footprint(cameras.iter(), Vec3::ZERO);
-    let score = |mesh: &gtsr_data::ply::TriMesh| -> Result<String> {
-        let (seen, _) = gtsr_eval::score_against_ground_truth(mesh, gt, &cameras, Some(hull))?;
-        Ok(format!(
-            "{:.3} | {:.3} | {:.3} | {:.2}",
-            1e3 * seen.chamfer,
-            1e3 * seen.accuracy,
-            1e3 * seen.completeness,
-            1e3 * seen.hull_blind.map_or(f64::NAN, |b| b.blind)
-        ))
-    };
+    let score =
+        |mesh: &gtsr_data::ply::TriMesh| crate::refine::score_cells(mesh, gt, &cameras, hull);
     // The faces' observed normals from one normal map per view.
     let observe = |normals: Vec<&[f32]>| -> Result<FaceNormals> {
         let views: Vec<NormalView<'_>> = cameras
@@ -304,19 +296,8 @@ fn refine_rows(
     let own = observed(|m| &m.hull_normal)?;
     // Per face, after the views are averaged: how far the run's and the masks' own normals
     // lie from the truth's.
-    let face_error = |x: &FaceNormals| -> (f32, f64) {
-        let mut e: Vec<f32> = (0..x.normal.len())
-            .filter(|f| x.weight[*f] > 0.0 && truth.weight[*f] > 0.0)
-            .map(|f| {
-                x.normal[f]
-                    .dot(truth.normal[f])
-                    .clamp(-1.0, 1.0)
-                    .acos()
-                    .to_degrees()
-            })
-            .collect();
-        median_mean(&mut e)
-    };
+    let face_error =
+        |x: &FaceNormals| -> (f32, f64) { median_mean(&mut crate::refine::face_angles(x, &truth)) };
     let ((rm, ra), (om, oa)) = (face_error(&run), face_error(&own));
     let mut departing = own.clone();
     let cos = 8f32.to_radians().cos();

@@ -6,6 +6,7 @@ mod diagnose_surface;
 mod fusion_ceiling;
 mod gen_scene;
 mod refine;
+mod shading;
 mod stability;
 
 use clap::{Parser, Subcommand};
@@ -37,6 +38,10 @@ enum Cmd {
     /// are there, and which loss term pushes their opacity and position which way (development
     /// scenes only: the ground truth diagnoses, never trains).
     DiagnoseSurface(diagnose_surface::DiagnoseSurfaceArgs),
+    /// Normals from the images' shading under the light at the camera (photometric stereo
+    /// with the light moving with each view), and the masks' mesh refined by them, scored
+    /// against the ground truth when the scene has one.
+    ShadingStereo(shading::ShadingStereoArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -46,5 +51,6 @@ fn main() -> anyhow::Result<()> {
         Cmd::BenchRecon(args) => bench_recon::run(&args),
         Cmd::FusionCeiling(args) => fusion_ceiling::run(&args),
         Cmd::DiagnoseSurface(args) => diagnose_surface::run(&args),
+        Cmd::ShadingStereo(args) => shading::run(&args),
     }
 }

@@ -128,10 +128,42 @@ pub fn observed_normals(
     Ok(out)
 }
 
+/// A refined mesh scored against the ground truth (what one training camera sees), as the
+/// table cells `chamfer | accuracy | completeness | hull-blind`, x1e3.
+pub(crate) fn score_cells(
+    mesh: &TriMesh,
+    gt: &TriMesh,
+    cameras: &[Camera],
+    hull: &TriMesh,
+) -> Result<String> {
+    let (seen, _) = gtsr_eval::score_against_ground_truth(mesh, gt, cameras, Some(hull))?;
+    Ok(format!(
+        "{:.3} | {:.3} | {:.3} | {:.2}",
+        1e3 * seen.chamfer,
+        1e3 * seen.accuracy,
+        1e3 * seen.completeness,
+        1e3 * seen.hull_blind.map_or(f64::NAN, |b| b.blind)
+    ))
+}
+
+/// Per face where both sets have a normal (weight > 0), the angle between them in degrees.
+pub(crate) fn face_angles(x: &FaceNormals, truth: &FaceNormals) -> Vec<f32> {
+    (0..x.normal.len())
+        .filter(|f| x.weight[*f] > 0.0 && truth.weight[*f] > 0.0)
+        .map(|f| {
+            x.normal[f]
+                .dot(truth.normal[f])
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees()
+        })
+        .collect()
+}
+
 /// The faces of `mesh` one view observes: those facing the camera (cosine at least `min_cos`)
 /// whose centroid lies within half a pixel footprint of the mesh's own first hit (`mesh_depth`)
 /// at the pixel it projects to; as (face, pixel, cosine).
-fn visible_faces(
+pub(crate) fn visible_faces(
     mesh: &TriMesh,
     cam: &Camera,
     mesh_depth: &[f32],
@@ -309,7 +341,24 @@ pub fn refine(
     depth: Option<&DepthTargets>,
     settings: &RefineSettings,
 ) -> Result<(TriMesh, Vec<f32>)> {
+    refine_anchored(mesh, targets, depth, settings, None)
+}
+
+/// [`refine`] with the anchor's weight scaled per vertex by `anchor_scale` (e.g. large where
+/// the mesh should stay, 1 where the normals may move it).
+pub fn refine_anchored(
+    mesh: &TriMesh,
+    targets: &FaceNormals,
+    depth: Option<&DepthTargets>,
+    settings: &RefineSettings,
+    anchor_scale: Option<&[f32]>,
+) -> Result<(TriMesh, Vec<f32>)> {
     let nf = mesh.triangles.len();
+    if anchor_scale.is_some_and(|a| {
+        a.len() != mesh.positions.len() || a.iter().any(|v| !(v.is_finite() && *v >= 0.0))
+    }) {
+        bail!("anchor scale: one finite, non-negative value per vertex expected");
+    }
     if let Some(dt) = depth {
         if dt.offset.len() != nf || dt.weight.len() != nf {
             bail!(
@@ -367,6 +416,11 @@ pub fn refine(
         }
     }
     let mu = 1.0 / (settings.anchor * settings.anchor);
+    // The anchor's mass per vertex.
+    let amass: Vec<f32> = match anchor_scale {
+        Some(a) => varea.iter().zip(a).map(|(m, a)| m * a).collect(),
+        None => varea.clone(),
+    };
     // b = -sum_f w A grad_k . t
     let mut b = vec![0.0f64; nv];
     for (f, t) in mesh.triangles.iter().enumerate() {
@@ -377,7 +431,7 @@ pub fn refine(
     }
     // Solved for y = d - max_outward <= 0: the anchor term mu m (y + c)^2 moves into b.
     let c = settings.max_outward.max(0.0) as f64;
-    for (bi, m) in b.iter_mut().zip(&varea) {
+    for (bi, m) in b.iter_mut().zip(&amass) {
         *bi -= mu as f64 * *m as f64 * c;
     }
     // The depth term, per face lambda A w (mean y - (o - c))^2 with lambda = 1 / length^2.
@@ -396,7 +450,7 @@ pub fn refine(
         }
     }
     let apply = |x: &[f64], out: &mut [f64], free: &[bool]| {
-        for (o, (xi, m)) in out.iter_mut().zip(x.iter().zip(&varea)) {
+        for (o, (xi, m)) in out.iter_mut().zip(x.iter().zip(&amass)) {
             *o = mu as f64 * *m as f64 * xi;
         }
         for (f, t) in mesh.triangles.iter().enumerate() {
@@ -428,9 +482,35 @@ pub fn refine(
             }
         }
     };
+    // Jacobi preconditioner: the diagonal of the system.
+    let mut diag: Vec<f64> = amass.iter().map(|m| mu as f64 * *m as f64).collect();
+    for (f, t) in mesh.triangles.iter().enumerate() {
+        let c = (wf[f] * geo.areas[f]) as f64;
+        for k in 0..3 {
+            diag[t[k] as usize] += c * geo.grads[f][k].as_dvec3().length_squared();
+        }
+    }
+    if let Some(coef) = &depth_coef {
+        for (t, &k_f) in mesh.triangles.iter().zip(coef) {
+            for k in t {
+                diag[*k as usize] += k_f / 9.0;
+            }
+        }
+    }
+    let inv_diag: Vec<f64> = diag
+        .iter()
+        .map(|d| {
+            if *d > 0.0 && d.is_finite() {
+                1.0 / d
+            } else {
+                0.0
+            }
+        })
+        .collect();
     let all = vec![true; nv];
     let mut free = vec![true; nv];
-    let mut x = vec![0.0f64; nv];
+    // Start from the mesh as it is (d = 0, y = -c).
+    let mut x = vec![-c; nv];
     for _ in 0..settings.rounds.max(1) {
         // Conjugate gradients on the free vertices (the held ones stay at 0).
         for (xi, f) in x.iter_mut().zip(&free) {
@@ -443,12 +523,13 @@ pub fn refine(
         let mut r: Vec<f64> = (0..nv)
             .map(|i| if free[i] { b[i] - ax[i] } else { 0.0 })
             .collect();
-        let mut p = r.clone();
-        let mut rr: f64 = r.iter().map(|v| v * v).sum();
-        let rr0 = rr.max(1e-300);
+        let mut z: Vec<f64> = r.iter().zip(&inv_diag).map(|(r, d)| r * d).collect();
+        let mut p = z.clone();
+        let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+        let rz0 = rz.max(1e-300);
         let mut ap = vec![0.0f64; nv];
         for _ in 0..settings.iterations {
-            if rr <= 1e-12 * rr0 {
+            if rz <= 1e-14 * rz0 {
                 break;
             }
             apply(&p, &mut ap, &free);
@@ -456,16 +537,17 @@ pub fn refine(
             if pap <= 0.0 || !pap.is_finite() {
                 break;
             }
-            let alpha = rr / pap;
+            let alpha = rz / pap;
             for i in 0..nv {
                 x[i] += alpha * p[i];
                 r[i] -= alpha * ap[i];
+                z[i] = r[i] * inv_diag[i];
             }
-            let rr_new: f64 = r.iter().map(|v| v * v).sum();
-            let beta = rr_new / rr;
-            rr = rr_new;
+            let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+            let beta = rz_new / rz;
+            rz = rz_new;
             for i in 0..nv {
-                p[i] = r[i] + beta * p[i];
+                p[i] = z[i] + beta * p[i];
             }
         }
         // Hold the vertices pushed outward; release the held ones the energy pulls inward.
@@ -534,33 +616,40 @@ mod tests {
         }
     }
 
-    #[test]
-    fn normals_of_a_dent_carve_the_dent() {
-        // Target: the normals of z = -0.1 (1 - r^2) inside r < 1 (a bowl), flat outside.
-        let mesh = grid(40);
-        let bowl = |p: Vec3| -> Vec3 {
-            let r2 = p.x * p.x + p.y * p.y;
-            if r2 < 1.0 {
-                // grad z = 0.2 (x, y); normal (-z_x, -z_y, 1).
-                Vec3::new(-0.2 * p.x, -0.2 * p.y, 1.0).normalize()
-            } else {
-                Vec3::Z
-            }
-        };
+    /// The normals of the bowl `z = -0.1 (1 - r^2)` inside `r < 1`, flat outside, per face
+    /// of `mesh` (at its centroid), and settings that let it move freely.
+    fn bowl_targets(mesh: &TriMesh) -> (FaceNormals, RefineSettings) {
         let normal: Vec<Vec3> = mesh
             .triangles
             .iter()
-            .map(|t| bowl(t.map(|i| mesh.positions[i as usize]).iter().sum::<Vec3>() / 3.0))
+            .map(|t| {
+                let c = t.map(|i| mesh.positions[i as usize]).iter().sum::<Vec3>() / 3.0;
+                if c.x * c.x + c.y * c.y < 1.0 {
+                    // grad z = 0.2 (x, y); normal (-z_x, -z_y, 1).
+                    Vec3::new(-0.2 * c.x, -0.2 * c.y, 1.0).normalize()
+                } else {
+                    Vec3::Z
+                }
+            })
             .collect();
-        let targets = FaceNormals {
-            weight: vec![1.0; normal.len()],
-            normal,
-        };
         let settings = RefineSettings {
             anchor: 10.0,
             max_depth: 1.0,
             ..RefineSettings::default()
         };
+        (
+            FaceNormals {
+                weight: vec![1.0; normal.len()],
+                normal,
+            },
+            settings,
+        )
+    }
+
+    #[test]
+    fn normals_of_a_dent_carve_the_dent() {
+        let mesh = grid(40);
+        let (targets, settings) = bowl_targets(&mesh);
         let (_, d) = refine_with_normals(&mesh, &targets, &settings).unwrap();
         let centre = d[20 * 41 + 20];
         eprintln!(
@@ -579,6 +668,33 @@ mod tests {
         };
         let (_, d) = refine_with_normals(&mesh, &flat, &settings).unwrap();
         assert!(d.iter().all(|v| v.abs() < 1e-6));
+    }
+
+    #[test]
+    fn an_irregular_fine_mesh_converges_within_the_iterations() {
+        // The bowl of the test above on a finer grid whose vertices are jittered in the
+        // plane (triangles of very different sizes, as marching cubes makes them), at the
+        // default iteration count.
+        let n = 150;
+        let mut mesh = grid(n);
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f32 / (1u64 << 53) as f32 - 0.5
+        };
+        let cell = 2.0 / n as f32;
+        for p in mesh.positions.iter_mut() {
+            if p.x.abs() < 1.0 && p.y.abs() < 1.0 {
+                p.x += 0.9 * cell * next();
+                p.y += 0.9 * cell * next();
+            }
+        }
+        let (targets, settings) = bowl_targets(&mesh);
+        let (_, d) = refine_with_normals(&mesh, &targets, &settings).unwrap();
+        let centre = d[(n / 2) * (n + 1) + n / 2];
+        assert!((centre + 0.1).abs() < 0.01, "centre moved {centre}");
     }
 
     #[test]
