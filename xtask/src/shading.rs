@@ -70,6 +70,12 @@ pub struct ShadingStereoArgs {
     /// anchor keeps its weight.
     #[arg(long, default_value_t = 0.1)]
     pub free_radius: f32,
+    /// Remove a scene-wide tilt of the shading normals towards the eyes, proportional to how
+    /// lopsided the eyes that see each face are, fitted on the faces where the shading normals
+    /// and the mesh's own agree within 10 degrees (the images and the masks alone, no ground
+    /// truth).
+    #[arg(long)]
+    pub debias: bool,
     /// Refine with the truth's normals instead (the ceiling of the refinement; needs
     /// `mesh.ply`).
     #[arg(long)]
@@ -259,6 +265,60 @@ fn pin_scale(mesh: &TriMesh, free: &[bool], radius: f32, pin: f32) -> Vec<f32> {
         .collect()
 }
 
+/// Per face of `mesh`, the mean unit direction to the eyes of the views that see it
+/// (visibility as in [`shading_normals`]; zero where none does).
+fn mean_eye_directions(
+    mesh: &TriMesh,
+    cameras: &[Camera],
+    depths: &[Vec<f32>],
+    min_cos: f32,
+) -> Vec<Vec3> {
+    let mut sum = vec![Vec3::ZERO; mesh.triangles.len()];
+    for (cam, depth) in cameras.iter().zip(depths) {
+        let eye = cam.centre();
+        for (f, _, _) in visible_faces(mesh, cam, depth, min_cos) {
+            let c = mesh.triangles[f]
+                .map(|i| mesh.positions[i as usize])
+                .iter()
+                .sum::<Vec3>()
+                / 3.0;
+            sum[f] += (eye - c).normalize_or_zero();
+        }
+    }
+    sum.into_iter().map(Vec3::normalize_or_zero).collect()
+}
+
+/// Fits a scene-wide tilt of `shading` from `own` proportional to the lopsidedness of the
+/// eyes that see each face: `s_t = k m_t`, with `m_t` the part of `eyes` (per face, the mean
+/// unit direction to the eyes that see it) tangent to the face, by least squares over the
+/// faces where the two normals agree within 10 degrees; then removes `k m_t` from every solved
+/// shading normal. Returns `k`.
+fn debias(shading: &mut FaceNormals, own: &FaceNormals, eyes: &[Vec3]) -> f32 {
+    let agree = 10f32.to_radians().cos();
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (f, e) in eyes.iter().enumerate() {
+        let (s, n) = (shading.normal[f], own.normal[f]);
+        if shading.weight[f] <= 0.0 || s.dot(n) < agree {
+            continue;
+        }
+        let m = *e - e.dot(n) * n;
+        num += f64::from(s.dot(m));
+        den += f64::from(m.length_squared());
+    }
+    if den <= 0.0 {
+        return 0.0;
+    }
+    let k = (num / den) as f32;
+    for (f, e) in eyes.iter().enumerate() {
+        if shading.weight[f] > 0.0 {
+            let s = shading.normal[f];
+            let m = *e - e.dot(s) * s;
+            shading.normal[f] = (s - k * m).normalize_or_zero();
+        }
+    }
+    k
+}
+
 /// The mesh's own face normals, weight 1.
 fn own_normals(mesh: &TriMesh) -> FaceNormals {
     let normal: Vec<Vec3> = mesh
@@ -334,7 +394,7 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
         crate::refine::score_cells(mesh, gt, &cameras, &hull)
     };
     // The shading normals and (with the truth) the truth's, observed on `mesh`'s faces.
-    let observe = |mesh: &TriMesh| -> Result<(FaceNormals, Option<FaceNormals>)> {
+    let observe = |mesh: &TriMesh| -> Result<(FaceNormals, Option<FaceNormals>, Vec<Vec3>)> {
         let caster = gtsr_eval::MeshRaycaster::new(mesh, "the refined mesh")?;
         let depths: Vec<Vec<f32>> = cameras.iter().map(|c| caster.render(c).depth).collect();
         let views: Vec<ShadingView<'_>> = scene
@@ -378,7 +438,8 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
             }
             None => None,
         };
-        Ok((shading, truth))
+        let eyes = mean_eye_directions(mesh, &cameras, &depths, settings.min_cos);
+        Ok((shading, truth, eyes))
     };
     println!(
         "\n| anchor | round | chamfer | accuracy | completeness | hull-blind | solved faces | \
@@ -396,7 +457,11 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
         let mut mesh = hull.clone();
         for round in 1..=args.rounds {
             let t = std::time::Instant::now();
-            let (shading, truth) = observe(&mesh)?;
+            let (mut shading, truth, eyes) = observe(&mesh)?;
+            if args.debias {
+                let beta = debias(&mut shading, &own_normals(&mesh), &eyes);
+                println!("debias: removed a tilt of {beta:+.3} times the lopsidedness of the eyes");
+            }
             let solved = shading.weight.iter().filter(|w| **w > 0.0).count();
             let (em, ea) = truth
                 .as_ref()
@@ -425,6 +490,30 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
                 println!(
                     "own normals vs truth {om:.1} / {oa:.1}; on the {} faces whose own normal is > 10 deg off: own {xm:.1} / {xa:.1}, shading {sm:.1} / {sa:.1}",
                     off.iter().filter(|o| **o).count()
+                );
+                // Elsewhere (the flush surface): the shading normal's tilt from the truth's,
+                // split into its part towards the mean direction of the eyes that see the face
+                // and the part across it.
+                let (mut along, mut across) = (Vec::new(), Vec::new());
+                for f in 0..own.normal.len() {
+                    let tn = t.normal[f];
+                    let m = eyes[f] - eyes[f].dot(tn) * tn;
+                    if off[f] || t.weight[f] <= 0.0 || shading.weight[f] <= 0.0 || m.length() < 1e-3
+                    {
+                        continue;
+                    }
+                    let m = m.normalize();
+                    let e = shading.normal[f] - shading.normal[f].dot(tn) * tn;
+                    along.push(e.dot(m).clamp(-1.0, 1.0).asin().to_degrees());
+                    across.push(e.dot(tn.cross(m)).abs().clamp(0.0, 1.0).asin().to_degrees());
+                }
+                let mean =
+                    |v: &[f32]| v.iter().map(|x| *x as f64).sum::<f64>() / v.len().max(1) as f64;
+                println!(
+                    "flush surface ({} faces): shading tilt towards the eyes' mean direction {:+.2} deg (mean), across it {:.2} deg (mean |.|)",
+                    along.len(),
+                    mean(&along),
+                    mean(&across)
                 );
             }
             let mut departs = vec![false; shading.normal.len()];
