@@ -13,9 +13,11 @@
 //! it gets is the truth's blurred over that parallax. After a refinement the faces lie closer
 //! to the surface, and the normals are observed again on the refined mesh (`--rounds`).
 //!
-//! Translucency breaks the model: light scattered under the surface brightens faces seen at
-//! grazing angles and blurs the shading. The images are the only input; the ground truth
-//! only scores the result.
+//! Translucency breaks the model: light scattered under the surface leaves it away from where
+//! it entered, which blurs the shading and adds light that does not follow `n . w`. The images
+//! are the only input; the ground truth only scores the result and, with it, each round prints
+//! how far the shading normals lie from the truth's and how they lean towards the eyes that
+//! see each face.
 
 use std::path::PathBuf;
 
@@ -361,6 +363,20 @@ fn face_error(x: &FaceNormals, truth: &FaceNormals) -> (f32, f64) {
 pub fn run(args: &ShadingStereoArgs) -> Result<()> {
     if args.rounds == 0 || args.anchors.iter().any(|a| !(a.is_finite() && *a > 0.0)) {
         bail!("--rounds must be at least 1 and every --anchors value positive");
+    }
+    let valid = (0.0..1.0).contains(&args.min_cos)
+        && (0.0..180.0).contains(&args.depart_deg)
+        && args.pin.is_finite()
+        && args.pin > 0.0
+        && args.free_radius.is_finite()
+        && args.free_radius >= 0.0
+        && args.max_depth.is_finite()
+        && args.max_depth > 0.0;
+    if !valid {
+        bail!(
+            "--min-cos must be in [0, 1), --depart-deg in [0, 180), --pin and --max-depth \
+             positive, --free-radius non-negative"
+        );
     }
     let t0 = std::time::Instant::now();
     let (scene, hull) = crate::bench_recon::native_masks_mesh(&args.data)?;
