@@ -668,7 +668,7 @@ fn gauss(rng: &mut StdRng) -> f32 {
 }
 
 /// The median and the mean of `v` (sorted in place); NaN for an empty `v`.
-fn median_mean(v: &mut [f32]) -> (f32, f64) {
+pub(crate) fn median_mean(v: &mut [f32]) -> (f32, f64) {
     v.sort_by(f32::total_cmp);
     let mean = v.iter().map(|x| *x as f64).sum::<f64>() / v.len() as f64;
     (percentile(v, 0.5), mean)

@@ -27,6 +27,7 @@ use glam::{Mat3, Mat4, Vec3, Vec4};
 use gtsr_data::Camera;
 use gtsr_data::image_io::srgb_to_linear;
 use gtsr_data::ply::TriMesh;
+use gtsr_eval::mesh::{face_centroid, face_normal_scaled};
 use gtsr_eval::tsdf::median_pixel_footprint;
 
 use crate::refine::{FaceNormals, NormalView, RefineSettings, observed_normals, visible_faces};
@@ -129,15 +130,24 @@ impl Default for ShadingSettings {
     }
 }
 
+/// What [`shading_normals`] solves.
+pub struct ShadingFit {
+    /// Per face, the normal that the shading explains, weight 1 where solved, else 0.
+    pub normals: FaceNormals,
+    /// Per face, the mean unit direction to the eyes of the views that see it (zero where none
+    /// does).
+    pub eyes: Vec<Vec3>,
+}
+
 /// Per face of `mesh`, the normal that the shading of the views explains best (module
 /// documentation), with weight 1 where at least `min_views` views see the face and the solved
-/// normal faces outward (towards the face's own normal), else 0. Visibility as in
-/// [`crate::refine::observed_normals`].
+/// normal faces outward (towards the face's own normal), else 0; and the mean direction to
+/// the eyes that see it. Visibility as in [`crate::refine::observed_normals`].
 pub fn shading_normals(
     mesh: &TriMesh,
     views: &[ShadingView<'_>],
     settings: &ShadingSettings,
-) -> Result<FaceNormals> {
+) -> Result<ShadingFit> {
     let nf = mesh.triangles.len();
     for v in views {
         let n = v.camera.width as usize * v.camera.height as usize;
@@ -151,13 +161,11 @@ pub fn shading_normals(
             );
         }
     }
-    let own: Vec<(Vec3, Vec3)> = mesh
+    let own = own_normals(mesh).normal;
+    let centroids: Vec<Vec3> = mesh
         .triangles
         .iter()
-        .map(|t| {
-            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-            ((b - a).cross(c - a).normalize_or_zero(), (a + b + c) / 3.0)
-        })
+        .map(|t| face_centroid(mesh, *t))
         .collect();
     // Normal equations per face: sum w w^T, sum (I r^2) w, and for the ridge's albedo
     // sum (n0 . w)^2 and sum (I r^2)(n0 . w).
@@ -166,9 +174,14 @@ pub fn shading_normals(
     let mut c2 = vec![0.0f32; nf];
     let mut cy = vec![0.0f32; nf];
     let mut count = vec![0usize; nf];
+    let mut eyes = vec![Vec3::ZERO; nf];
     for v in views {
         let eye = v.camera.centre();
         for (f, p, _) in visible_faces(mesh, v.camera, v.mesh_depth, settings.min_cos) {
+            let d = eye - centroids[f];
+            let r2 = d.length_squared();
+            let w = d / r2.sqrt();
+            eyes[f] += w;
             if v.mask.is_some_and(|m| m[p] < settings.min_mask) {
                 continue;
             }
@@ -176,14 +189,11 @@ pub fn shading_normals(
             if !i.is_finite() {
                 continue;
             }
-            let d = eye - own[f].1;
-            let r2 = d.length_squared();
-            let w = d / r2.sqrt();
             let y = i * r2;
             let a = w.extend(1.0);
             ata[f] += Mat4::from_cols(a * a.x, a * a.y, a * a.z, a * a.w);
             atb[f] += y * a;
-            let c = own[f].0.dot(w);
+            let c = own[f].dot(w);
             c2[f] += c * c;
             cy[f] += c * y;
             count[f] += 1;
@@ -197,7 +207,7 @@ pub fn shading_normals(
         if count[f] < settings.min_views.max(3) || c2[f] <= 0.0 {
             continue;
         }
-        let n0 = own[f].0;
+        let n0 = own[f];
         let albedo = cy[f] / c2[f];
         let lambda = settings.ridge * (ata[f].x_axis.x + ata[f].y_axis.y + ata[f].z_axis.z) / 3.0;
         let b = if settings.ambient {
@@ -221,7 +231,10 @@ pub fn shading_normals(
             out.weight[f] = 1.0;
         }
     }
-    Ok(out)
+    Ok(ShadingFit {
+        normals: out,
+        eyes: eyes.into_iter().map(Vec3::normalize_or_zero).collect(),
+    })
 }
 
 /// Per vertex of `mesh`: 1 within `radius` (along the edges) of a face marked in `free`,
@@ -267,29 +280,6 @@ fn pin_scale(mesh: &TriMesh, free: &[bool], radius: f32, pin: f32) -> Vec<f32> {
         .collect()
 }
 
-/// Per face of `mesh`, the mean unit direction to the eyes of the views that see it
-/// (visibility as in [`shading_normals`]; zero where none does).
-fn mean_eye_directions(
-    mesh: &TriMesh,
-    cameras: &[Camera],
-    depths: &[Vec<f32>],
-    min_cos: f32,
-) -> Vec<Vec3> {
-    let mut sum = vec![Vec3::ZERO; mesh.triangles.len()];
-    for (cam, depth) in cameras.iter().zip(depths) {
-        let eye = cam.centre();
-        for (f, _, _) in visible_faces(mesh, cam, depth, min_cos) {
-            let c = mesh.triangles[f]
-                .map(|i| mesh.positions[i as usize])
-                .iter()
-                .sum::<Vec3>()
-                / 3.0;
-            sum[f] += (eye - c).normalize_or_zero();
-        }
-    }
-    sum.into_iter().map(Vec3::normalize_or_zero).collect()
-}
-
 /// Fits a scene-wide tilt of `shading` from `own` proportional to the lopsidedness of the
 /// eyes that see each face: `s_t = k m_t`, with `m_t` the part of `eyes` (per face, the mean
 /// unit direction to the eyes that see it) tangent to the face, by least squares over the
@@ -326,10 +316,7 @@ fn own_normals(mesh: &TriMesh) -> FaceNormals {
     let normal: Vec<Vec3> = mesh
         .triangles
         .iter()
-        .map(|t| {
-            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-            (b - a).cross(c - a).normalize_or_zero()
-        })
+        .map(|t| face_normal_scaled(mesh, *t).normalize_or_zero())
         .collect();
     FaceNormals {
         weight: vec![1.0; normal.len()],
@@ -348,15 +335,9 @@ fn radiance(rgb: &[f32], srgb: bool) -> Vec<f32> {
 }
 
 /// Per face where both have a normal, the angle between two sets of face normals (degrees,
-/// median / mean).
+/// median / mean; NaN where none).
 fn face_error(x: &FaceNormals, truth: &FaceNormals) -> (f32, f64) {
-    let mut e = crate::refine::face_angles(x, truth);
-    if e.is_empty() {
-        return (f32::NAN, f64::NAN);
-    }
-    e.sort_by(f32::total_cmp);
-    let mean = e.iter().map(|v| *v as f64).sum::<f64>() / e.len() as f64;
-    (e[e.len() / 2], mean)
+    crate::concavity::median_mean(&mut crate::refine::face_angles(x, truth))
 }
 
 /// Runs `shading-stereo`.
@@ -409,8 +390,29 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
         };
         crate::refine::score_cells(mesh, gt, &cameras, &hull)
     };
-    // The shading normals and (with the truth) the truth's, observed on `mesh`'s faces.
-    let observe = |mesh: &TriMesh| -> Result<(FaceNormals, Option<FaceNormals>, Vec<Vec3>)> {
+    // The truth's normal maps (camera space, 3 per pixel) of the training views: they do not
+    // depend on the mesh being refined.
+    let truth_maps: Option<Vec<Vec<f32>>> = match &gt {
+        Some(gt) => {
+            let gt_caster = gtsr_eval::MeshRaycaster::new(gt, "ground-truth mesh")?;
+            Some(
+                cameras
+                    .iter()
+                    .map(|c| {
+                        gt_caster
+                            .render(c)
+                            .normal
+                            .iter()
+                            .flat_map(|n| n.to_array())
+                            .collect()
+                    })
+                    .collect(),
+            )
+        }
+        None => None,
+    };
+    // The shading fit and (with the truth) the truth's normals, observed on `mesh`'s faces.
+    let observe = |mesh: &TriMesh| -> Result<(ShadingFit, Option<FaceNormals>)> {
         let caster = gtsr_eval::MeshRaycaster::new(mesh, "the refined mesh")?;
         let depths: Vec<Vec<f32>> = cameras.iter().map(|c| caster.render(c).depth).collect();
         let views: Vec<ShadingView<'_>> = scene
@@ -425,24 +427,12 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
                 mesh_depth: d,
             })
             .collect();
-        let shading = shading_normals(mesh, &views, &settings)?;
-        let truth = match &gt {
-            Some(gt) => {
-                let gt_caster = gtsr_eval::MeshRaycaster::new(gt, "ground-truth mesh")?;
-                let normals: Vec<Vec<f32>> = cameras
-                    .iter()
-                    .map(|c| {
-                        gt_caster
-                            .render(c)
-                            .normal
-                            .iter()
-                            .flat_map(|n| n.to_array())
-                            .collect()
-                    })
-                    .collect();
+        let fit = shading_normals(mesh, &views, &settings)?;
+        let truth = match &truth_maps {
+            Some(normals) => {
                 let nv: Vec<NormalView<'_>> = cameras
                     .iter()
-                    .zip(&normals)
+                    .zip(normals)
                     .zip(&depths)
                     .map(|((c, n), d)| NormalView {
                         camera: c,
@@ -454,8 +444,7 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
             }
             None => None,
         };
-        let eyes = mean_eye_directions(mesh, &cameras, &depths, settings.min_cos);
-        Ok((shading, truth, eyes))
+        Ok((fit, truth))
     };
     println!(
         "\n| anchor | round | chamfer | accuracy | completeness | hull-blind | solved faces | \
@@ -473,9 +462,16 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
         let mut mesh = hull.clone();
         for round in 1..=args.rounds {
             let t = std::time::Instant::now();
-            let (mut shading, truth, eyes) = observe(&mesh)?;
+            let (
+                ShadingFit {
+                    normals: mut shading,
+                    eyes,
+                },
+                truth,
+            ) = observe(&mesh)?;
+            let own = own_normals(&mesh);
             if args.debias {
-                let beta = debias(&mut shading, &own_normals(&mesh), &eyes);
+                let beta = debias(&mut shading, &own, &eyes);
                 println!("debias: removed a tilt of {beta:+.3} times the lopsidedness of the eyes");
             }
             let solved = shading.weight.iter().filter(|w| **w > 0.0).count();
@@ -484,7 +480,6 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
                 .map_or((f32::NAN, f64::NAN), |t| face_error(&shading, t));
             if let Some(t) = &truth {
                 // Where the mesh's own normals are more than 10 degrees off the truth's.
-                let own = own_normals(&mesh);
                 let off: Vec<bool> = (0..own.normal.len())
                     .map(|f| {
                         t.weight[f] > 0.0
@@ -534,7 +529,6 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
             }
             let mut departs = vec![false; shading.normal.len()];
             let departing = if args.depart_deg > 0.0 {
-                let own = own_normals(&mesh);
                 let cos = args.depart_deg.to_radians().cos();
                 let mut x = shading.clone();
                 for (f, dep) in departs.iter_mut().enumerate() {
@@ -647,7 +641,8 @@ mod tests {
                 ..ShadingSettings::default()
             },
         )
-        .unwrap();
+        .unwrap()
+        .normals;
         for f in 0..2 {
             assert_eq!(got.weight[f], 1.0);
             let angle = got.normal[f]
