@@ -47,6 +47,12 @@ impl<'a> MeshRaycaster<'a> {
         })
     }
 
+    /// The first hit of the ray from `origin` along the unit direction `dir`: the distance
+    /// along the ray and the unit normal of the triangle hit, turned to face the origin.
+    pub fn first_hit(&self, origin: Vec3, dir: Vec3) -> Option<(f32, Vec3)> {
+        self.target.first_hit(origin, dir)
+    }
+
     /// The mesh's depth and normal maps seen from `camera` (one ray through each pixel
     /// centre, first hit). Parallel over rows.
     pub fn render(&self, camera: &Camera) -> MeshDepth {
