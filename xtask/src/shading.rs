@@ -86,9 +86,9 @@ pub struct ShadingStereoArgs {
     /// truth).
     #[arg(long)]
     pub debias: bool,
-    /// The image channel whose shading is read: `mean` (of the three), `r`, `g` or `b`.
-    #[arg(long, default_value = "mean")]
-    pub channel: String,
+    /// The image channel whose shading is read.
+    #[arg(long, value_enum, default_value_t = Channel::Mean)]
+    pub channel: Channel,
     /// Fit the scene's response to the angle on this many knots instead of Lambert's cosine
     /// (`ShadingSettings::response`; 0: Lambert).
     #[arg(long, default_value_t = 0)]
@@ -122,6 +122,19 @@ pub struct ShadingStereoArgs {
     /// Write the last refined mesh of the first anchor here.
     #[arg(long)]
     pub out: Option<PathBuf>,
+}
+
+/// Which of an image's channels [`shading_normals`] reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Channel {
+    /// The mean of the three.
+    Mean,
+    /// Red.
+    R,
+    /// Green.
+    G,
+    /// Blue.
+    B,
 }
 
 /// One view for [`shading_normals`].
@@ -477,18 +490,15 @@ pub fn shading_normals(
         let (w, h) = (cam.width as usize, cam.height as usize);
         // The radiance of a surrounding point in this view, 0 where the view does not show it.
         let shown = |q: Vec3| -> f32 {
-            let c = cam.world_to_camera.transform_point3(q);
-            if c.z <= 0.0 {
+            let Some((uv, depth)) = cam.project(q) else {
+                return 0.0;
+            };
+            if !(uv.x >= 0.0 && uv.y >= 0.0 && (uv.x as usize) < w && (uv.y as usize) < h) {
                 return 0.0;
             }
-            let u = cam.fx * c.x / c.z + cam.cx;
-            let y = cam.fy * c.y / c.z + cam.cy;
-            if !(u >= 0.0 && y >= 0.0 && (u as usize) < w && (y as usize) < h) {
-                return 0.0;
-            }
-            let p = y as usize * w + u as usize;
+            let p = uv.y as usize * w + uv.x as usize;
             let z = v.mesh_depth[p];
-            if z > 0.0 && (c.z - z).abs() <= 2.0 * c.z / cam.fx && v.radiance[p].is_finite() {
+            if z > 0.0 && (depth - z).abs() <= 2.0 * depth / cam.fx && v.radiance[p].is_finite() {
                 v.radiance[p]
             } else {
                 0.0
@@ -771,17 +781,15 @@ fn face_neighbours(mesh: &TriMesh) -> Vec<Vec<u32>> {
     out
 }
 
-/// Smooths per-face vectors over the mesh by explicit diffusion along shared edges, far
-/// enough that a face's value becomes a Gaussian-like average over about `sigma` (scene
-/// units) around it, and renormalises.
-fn diffuse(mesh: &TriMesh, neighbours: &[Vec<u32>], x: &[Vec3], sigma: f32) -> Vec<Vec3> {
+/// The explicit diffusion steps of [`diffuse`] that average a face's value over about `sigma`
+/// (scene units) around it: the mean squared distance between neighbouring centroids sets
+/// the variance each step adds (step size 1/2), `2 sigma^2` over the surface's two dimensions.
+fn diffusion_steps(mesh: &TriMesh, neighbours: &[Vec<u32>], sigma: f32) -> usize {
     let centroids: Vec<Vec3> = mesh
         .triangles
         .iter()
         .map(|t| face_centroid(mesh, *t))
         .collect();
-    // The mean squared distance between neighbouring centroids sets the variance each step
-    // adds (step size 1/2): 2 sigma^2 over the surface's two dimensions.
     let (mut d2, mut n) = (0.0f64, 0usize);
     for (f, nb) in neighbours.iter().enumerate() {
         for &g in nb {
@@ -790,7 +798,12 @@ fn diffuse(mesh: &TriMesh, neighbours: &[Vec<u32>], x: &[Vec3], sigma: f32) -> V
         }
     }
     let d2 = (d2 / n.max(1) as f64).max(f64::MIN_POSITIVE);
-    let steps = (2.0 * f64::from(sigma).powi(2) / (0.5 * d2)).ceil() as usize;
+    (2.0 * f64::from(sigma).powi(2) / (0.5 * d2)).ceil() as usize
+}
+
+/// Smooths per-face vectors over the mesh by `steps` of explicit diffusion along shared
+/// edges, and renormalises.
+fn diffuse(neighbours: &[Vec<u32>], x: &[Vec3], steps: usize) -> Vec<Vec3> {
     let mut cur = x.to_vec();
     let mut next = cur.clone();
     for _ in 0..steps {
@@ -822,8 +835,9 @@ fn low_pass(mesh: &TriMesh, shading: &mut FaceNormals, own: &FaceNormals, sigma:
             }
         })
         .collect();
-    let s_bar = diffuse(mesh, &neighbours, &s, sigma);
-    let o_bar = diffuse(mesh, &neighbours, &own.normal, sigma);
+    let steps = diffusion_steps(mesh, &neighbours, sigma);
+    let s_bar = diffuse(&neighbours, &s, steps);
+    let o_bar = diffuse(&neighbours, &own.normal, steps);
     for f in 0..s.len() {
         if shading.weight[f] > 0.0 && s_bar[f] != Vec3::ZERO && o_bar[f] != Vec3::ZERO {
             let q = glam::Quat::from_rotation_arc(s_bar[f], o_bar[f]);
@@ -950,12 +964,11 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
              positive, --max-outward, --free-radius, --low-pass and --orient-debias non-negative, --response 0 or at least 2, --min-openness in [0, 1], --interreflection-c non-negative"
         );
     }
-    let channel = match args.channel.as_str() {
-        "mean" => None,
-        "r" => Some(0),
-        "g" => Some(1),
-        "b" => Some(2),
-        other => bail!("--channel must be mean, r, g or b, not {other:?}"),
+    let channel = match args.channel {
+        Channel::Mean => None,
+        Channel::R => Some(0),
+        Channel::G => Some(1),
+        Channel::B => Some(2),
     };
     let t0 = std::time::Instant::now();
     let (scene, hull) = crate::bench_recon::native_masks_mesh(&args.data)?;
@@ -997,7 +1010,16 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
         interreflection_c: args.interreflection_c,
         ..ShadingSettings::default()
     };
-    let open = surroundings(&hull, 32)?.openness();
+    // The masks' mesh's surroundings: for the openness (the diagnostics, `--min-openness`) and
+    // the first round's interreflection.
+    let hull_around = if gt.is_some() || args.min_openness > 0.0 || args.interreflection {
+        Some(surroundings(&hull, 32)?)
+    } else {
+        None
+    };
+    let open = hull_around
+        .as_ref()
+        .map_or_else(|| vec![1.0; hull.triangles.len()], Surroundings::openness);
     let score = |mesh: &TriMesh| -> Result<String> {
         let Some(gt) = &gt else {
             return Ok("- | - | - | -".into());
@@ -1026,7 +1048,7 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
         None => None,
     };
     // The shading fit and (with the truth) the truth's normals, observed on `mesh`'s faces.
-    let observe = |mesh: &TriMesh| -> Result<(ShadingFit, Option<FaceNormals>)> {
+    let observe = |mesh: &TriMesh, round: usize| -> Result<(ShadingFit, Option<FaceNormals>)> {
         let caster = gtsr_eval::MeshRaycaster::new(mesh, "the refined mesh")?;
         let depths: Vec<Vec<f32>> = cameras.iter().map(|c| caster.render(c).depth).collect();
         let views: Vec<ShadingView<'_>> = scene
@@ -1041,12 +1063,16 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
                 mesh_depth: d,
             })
             .collect();
-        let around = if args.interreflection {
-            Some(surroundings(mesh, 32)?)
-        } else {
-            None
+        let cast;
+        let around = match (args.interreflection, round) {
+            (false, _) => None,
+            (true, 1) => hull_around.as_ref(),
+            (true, _) => {
+                cast = surroundings(mesh, 32)?;
+                Some(&cast)
+            }
         };
-        let fit = shading_normals(mesh, &views, around.as_ref(), &settings)?;
+        let fit = shading_normals(mesh, &views, around, &settings)?;
         let truth = match &truth_maps {
             Some(normals) => {
                 let nv: Vec<NormalView<'_>> = cameras
@@ -1089,7 +1115,7 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
                     interreflection,
                 },
                 truth,
-            ) = observe(&mesh)?;
+            ) = observe(&mesh, round)?;
             let own = own_normals(&mesh);
             if args.interreflection {
                 println!("interreflection: c = {interreflection:.4}");
@@ -1146,19 +1172,28 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
                 // Elsewhere (the flush surface): the shading normal's tilt from the truth's,
                 // split into its part towards the mean direction of the eyes that see the face
                 // and the part across it.
-                let (mut along, mut across) = (Vec::new(), Vec::new());
-                for f in 0..own.normal.len() {
-                    let tn = t.normal[f];
-                    let m = eyes[f] - eyes[f].dot(tn) * tn;
-                    if off[f] || t.weight[f] <= 0.0 || shading.weight[f] <= 0.0 || m.length() < 1e-3
-                    {
-                        continue;
+                // Per face kept by `keep`, the tilt towards and (|.|) across, degrees.
+                let tilts = |keep: &dyn Fn(usize) -> bool| -> (Vec<f32>, Vec<f32>) {
+                    let (mut along, mut across) = (Vec::new(), Vec::new());
+                    for f in 0..own.normal.len() {
+                        let tn = t.normal[f];
+                        let m = eyes[f] - eyes[f].dot(tn) * tn;
+                        if off[f]
+                            || t.weight[f] <= 0.0
+                            || shading.weight[f] <= 0.0
+                            || m.length() < 1e-3
+                            || !keep(f)
+                        {
+                            continue;
+                        }
+                        let m = m.normalize();
+                        let e = shading.normal[f] - shading.normal[f].dot(tn) * tn;
+                        along.push(e.dot(m).clamp(-1.0, 1.0).asin().to_degrees());
+                        across.push(e.dot(tn.cross(m)).abs().clamp(0.0, 1.0).asin().to_degrees());
                     }
-                    let m = m.normalize();
-                    let e = shading.normal[f] - shading.normal[f].dot(tn) * tn;
-                    along.push(e.dot(m).clamp(-1.0, 1.0).asin().to_degrees());
-                    across.push(e.dot(tn.cross(m)).abs().clamp(0.0, 1.0).asin().to_degrees());
-                }
+                    (along, across)
+                };
+                let (along, across) = tilts(&|_| true);
                 let mean =
                     |v: &[f32]| v.iter().map(|x| *x as f64).sum::<f64>() / v.len().max(1) as f64;
                 println!(
@@ -1169,34 +1204,20 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
                 );
                 // The same tilt by how open the face is to the rest of the object.
                 let bins = [0.0, 0.5, 0.75, 0.9, 0.97, 1.01];
-                let mut row = Vec::new();
-                for b in bins.windows(2) {
-                    let (mut al, mut ac) = (Vec::new(), Vec::new());
-                    for f in 0..own.normal.len() {
-                        let tn = t.normal[f];
-                        let m = eyes[f] - eyes[f].dot(tn) * tn;
-                        if off[f]
-                            || t.weight[f] <= 0.0
-                            || shading.weight[f] <= 0.0
-                            || m.length() < 1e-3
-                            || !(b[0]..b[1]).contains(&open[f])
-                        {
-                            continue;
-                        }
-                        let m = m.normalize();
-                        let e = shading.normal[f] - shading.normal[f].dot(tn) * tn;
-                        al.push(e.dot(m).clamp(-1.0, 1.0).asin().to_degrees());
-                        ac.push(e.dot(tn.cross(m)).abs().clamp(0.0, 1.0).asin().to_degrees());
-                    }
-                    row.push(format!(
-                        "[{:.2}, {:.2}): {} faces {:+.2} / {:.2}",
-                        b[0],
-                        b[1].min(1.0),
-                        al.len(),
-                        mean(&al),
-                        mean(&ac)
-                    ));
-                }
+                let row: Vec<String> = bins
+                    .windows(2)
+                    .map(|b| {
+                        let (al, ac) = tilts(&|f| (b[0]..b[1]).contains(&open[f]));
+                        format!(
+                            "[{:.2}, {:.2}): {} faces {:+.2} / {:.2}",
+                            b[0],
+                            b[1].min(1.0),
+                            al.len(),
+                            mean(&al),
+                            mean(&ac)
+                        )
+                    })
+                    .collect();
                 println!(
                     "by openness (faces, tilt towards / across): {}",
                     row.join("; ")
