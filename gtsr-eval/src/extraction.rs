@@ -22,6 +22,8 @@ use crate::error::{EvalError, Result};
 use crate::mesh::face_centroid;
 use crate::mesh::largest_component;
 use crate::metrics::SignedDistance;
+use crate::refine::{debiased_depth_targets, observed_offsets};
+use crate::shading::{ShadingImage, ShadingRefinement, refine_by_shading};
 use crate::tsdf::{
     TsdfVolume, default_truncation, default_voxel_for_radius, drop_depth_edges, faces_ray,
     median_pixel_footprint, snap_to_hull,
@@ -80,6 +82,13 @@ pub const DEFAULT_CARVE_MARGIN: f32 = 1.0;
 pub const DEFAULT_CONCAVITY_GATE: f32 = 3.0;
 /// The default tolerance in footprints of [`MeshConfig::cull_unobserved`].
 pub const DEFAULT_CULL_UNOBSERVED: f32 = 3.0;
+/// How far the shading refinement may move a vertex outward, in the masks' footprints.
+const SHADING_MAX_OUTWARD: f32 = 0.25;
+/// The default of [`MeshConfig::shading_depth_threshold`], footprints.
+pub const DEFAULT_SHADING_DEPTH_THRESHOLD: f32 = 0.25;
+/// [`MeshConfig::shading_depth`]: the depth's offsets count on faces at least this many views
+/// observe.
+const DEPTH_MIN_VIEWS: u32 = 3;
 
 /// Every mesh extraction setting. Scenes without masks always use [`Fusion::Tsdf`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
@@ -128,6 +137,25 @@ pub struct MeshConfig {
     #[arg(long = "cull-unobserved", id = "mesh.cull_unobserved", value_name = "FOOTPRINTS",
           default_value_t = DEFAULT_CULL_UNOBSERVED, value_parser = parse_non_negative)]
     pub cull_unobserved: f32,
+    /// Carving: then refine the mesh by the normals the training images' shading explains
+    /// under a light at the camera (the paper's capture), with the light the object sends
+    /// itself modelled; each vertex moves along its normal, held to where it was over this many
+    /// of the masks' pixel footprints (0: off; 1 was measured). It needs clean, well resolved
+    /// shading: on noisy or low-resolution images it roughens the mesh. The final mesh only,
+    /// not the evaluations during training.
+    #[arg(long = "shading-anchor", id = "mesh.shading_anchor", value_name = "FOOTPRINTS",
+          default_value_t = 0.0, value_parser = parse_non_negative)]
+    pub shading_anchor: f32,
+    /// Carving, with the shading refinement: also pull each face towards where the rendered
+    /// depth maps see the surface (per face the median offset over the views, less the median
+    /// over the faces: the depth's bias; trusted inward beyond
+    /// [`MeshConfig::shading_depth_threshold`]), over this many footprints (0: off).
+    #[arg(skip)]
+    pub shading_depth: f32,
+    /// With [`MeshConfig::shading_depth`]: the depth's offsets are trusted inward beyond this
+    /// many footprints; the faces within it are asked to stay.
+    #[arg(skip = DEFAULT_SHADING_DEPTH_THRESHOLD)]
+    pub shading_depth_threshold: f32,
     /// Carving: the grid spacing (scene units). Default: 0.75 of the masks' pixel footprint
     /// at the object, at the dataset's resolution.
     #[arg(long = "carve-voxel", id = "mesh.carve_voxel", value_name = "SIZE", value_parser = parse_positive)]
@@ -188,6 +216,9 @@ impl Default for MeshConfig {
             carve_concavity_gate: DEFAULT_CONCAVITY_GATE,
             carve_gate_radius: CarveSettings::default().gate_radius,
             cull_unobserved: DEFAULT_CULL_UNOBSERVED,
+            shading_anchor: 0.0,
+            shading_depth: 0.0,
+            shading_depth_threshold: DEFAULT_SHADING_DEPTH_THRESHOLD,
             carve_voxel: None,
             voxel: None,
             truncation: None,
@@ -269,6 +300,17 @@ impl MeshConfig {
                 self.cull_unobserved
             ));
         }
+        for (name, v) in [
+            ("shading_anchor", self.shading_anchor),
+            ("shading_depth", self.shading_depth),
+            ("shading_depth_threshold", self.shading_depth_threshold),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(format!(
+                    "mesh.{name} must be a finite number of footprints >= 0, got {v}"
+                ));
+            }
+        }
         if let Some(t) = self.depth_crossing
             && !(t > 0.0 && t < 1.0)
         {
@@ -321,6 +363,10 @@ pub struct MasksAlone {
     pub mesh: TriMesh,
     /// The grid spacing of [`MasksAlone::mesh`] ([`crate::hull::masks_voxel`]).
     pub voxel: f32,
+    /// The views' linear radiance at the masks' size, one value per pixel
+    /// ([`crate::shading::linear_radiance`]), for [`MeshConfig::shading_anchor`]; `None`: the
+    /// mesh is not refined by the shading.
+    pub radiance: Option<Vec<Vec<f32>>>,
 }
 
 impl MasksAlone {
@@ -334,7 +380,36 @@ impl MasksAlone {
         let Some(mesh) = crate::masks_mesh(&borrowed, Some(voxel))? else {
             return Ok(None);
         };
-        Ok(Some(MasksAlone { views, mesh, voxel }))
+        Ok(Some(MasksAlone {
+            views,
+            mesh,
+            voxel,
+            radiance: None,
+        }))
+    }
+
+    /// With each view's linear radiance (one value per pixel of its mask), for the shading
+    /// refinement.
+    pub fn with_radiance(mut self, radiance: Vec<Vec<f32>>) -> Result<Self> {
+        if radiance.len() != self.views.len() {
+            return Err(EvalError::size(
+                "radiance views",
+                self.views.len(),
+                radiance.len(),
+            ));
+        }
+        for (r, (_, m)) in radiance.iter().zip(&self.views) {
+            if r.len() != m.len() {
+                return Err(EvalError::size("radiance", m.len(), r.len()));
+            }
+            if r.iter().any(|x| !x.is_finite()) {
+                return Err(EvalError::NonFinite {
+                    what: "radiance".into(),
+                });
+            }
+        }
+        self.radiance = Some(radiance);
+        Ok(self)
     }
 
     /// The views as the hull functions take them.
@@ -440,8 +515,10 @@ pub fn prepare_depth(
 /// With [`Fusion::Carve`] and the masks: the masks at the dataset's resolution carved by the
 /// depth maps where [`MeshConfig::carve`] agrees ([`crate::carve_mesh`]; the concavity gate
 /// compares each depth map with the masks' mesh ray cast from the same camera), then, with
-/// [`MeshConfig::cull_unobserved`], without the carved walls no depth map observes. Otherwise
-/// a TSDF of the depth maps on the box (voxel: its radius / 256 unless set), with the masks'
+/// [`MeshConfig::cull_unobserved`], without the carved walls no depth map observes, and, with
+/// [`MeshConfig::shading_anchor`] and [`MasksAlone::radiance`] (not when `coarse`), refined by
+/// the images' shading (and with [`MeshConfig::shading_depth`] the depth maps). Otherwise a
+/// TSDF of the depth maps on the box (voxel: its radius / 256 unless set), with the masks'
 /// hull kept in the volume when every view has a mask and [`MeshConfig::silhouette_carving`]
 /// is on; then marching cubes and the largest connected component.
 pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMesh, Vec<String>)> {
@@ -507,6 +584,25 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
                 before - mesh.triangles.len(),
                 config.cull_unobserved
             ));
+        }
+        if config.shading_anchor > 0.0
+            && !inputs.coarse
+            && let Some(radiance) = &masks.radiance
+        {
+            let depth = (config.shading_depth > 0.0).then_some(DepthFrom {
+                views: inputs.views,
+                maps: &maps,
+                length: config.shading_depth,
+                threshold: config.shading_depth_threshold,
+            });
+            mesh = shading_refined(
+                mesh,
+                masks,
+                radiance,
+                depth,
+                config.shading_anchor,
+                &mut notes,
+            )?;
         }
         return Ok((mesh, notes));
     }
@@ -581,6 +677,107 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
         tsdf.integrate(v.camera, depth, masks_pending.then_some(v.mask))?;
     }
     Ok((largest_component(&tsdf.extract_mesh()), notes))
+}
+
+/// The rendered depth maps a refinement reads ([`MeshConfig::shading_depth`]).
+#[derive(Clone, Copy)]
+struct DepthFrom<'a> {
+    views: &'a [FusionView<'a>],
+    maps: &'a [Vec<f32>],
+    /// Footprints.
+    length: f32,
+    /// Footprints.
+    threshold: f32,
+}
+
+/// `mesh` refined by the shading of the masks' views ([`refine_by_shading`]) and, with
+/// `depth`, by the offsets its depth maps observe; the anchor, the outward bound and the
+/// depth's length and threshold in the masks' pixel footprints at the mesh's centre.
+fn shading_refined(
+    mesh: TriMesh,
+    masks: &MasksAlone,
+    radiance: &[Vec<f32>],
+    depth: Option<DepthFrom<'_>>,
+    anchor: f32,
+    notes: &mut Vec<String>,
+) -> Result<TriMesh> {
+    let t0 = std::time::Instant::now();
+    let (lo, hi) = mesh.bounds();
+    let cameras: Vec<Camera> = masks.views.iter().map(|(c, _)| *c).collect();
+    let footprint = median_pixel_footprint(&cameras, 0.5 * (lo + hi));
+    let images: Vec<ShadingImage<'_>> = masks
+        .views
+        .iter()
+        .zip(radiance)
+        .map(|((camera, mask), radiance)| ShadingImage {
+            camera,
+            radiance,
+            mask: Some(mask),
+        })
+        .collect();
+    let settings = ShadingRefinement {
+        anchor: anchor * footprint,
+        max_outward: SHADING_MAX_OUTWARD * footprint,
+        ..ShadingRefinement::default()
+    };
+    let targets = match depth {
+        Some(d) => {
+            let caster = MeshRaycaster::new(&mesh, "the mesh to refine")?;
+            let own: Vec<Vec<f32>> = (d.views.iter())
+                .map(|v| caster.render(v.camera).depth)
+                .collect();
+            let views: Vec<crate::refine::DepthView<'_>> = (d.views.iter().zip(d.maps).zip(&own))
+                .map(|((v, depth), mesh_depth)| crate::refine::DepthView {
+                    camera: v.camera,
+                    depth,
+                    mesh_depth,
+                })
+                .collect();
+            let offsets = observed_offsets(&mesh, &views, settings.shading.min_cos)?;
+            let (t, bias) = debiased_depth_targets(
+                &offsets,
+                DEPTH_MIN_VIEWS,
+                d.threshold * footprint,
+                d.length * footprint,
+            );
+            let mut dev: Vec<f32> = (offsets.offset.iter().zip(&offsets.views))
+                .filter(|(_, v)| **v >= DEPTH_MIN_VIEWS)
+                .map(|(o, _)| (o - bias).abs() / footprint)
+                .collect();
+            dev.sort_by(f32::total_cmp);
+            let q = |p: f64| {
+                dev.get(((dev.len() as f64 - 1.0) * p) as usize)
+                    .copied()
+                    .unwrap_or(0.0)
+            };
+            notes.push(format!(
+                "shading refinement: the depth's offsets on {} faces, bias {:+.5}, \
+                 |offset - bias| quantiles 0.5/0.75/0.9/0.99 {:.3}/{:.3}/{:.3}/{:.3} footprints",
+                t.weight.iter().filter(|w| **w > 0.0).count(),
+                bias,
+                q(0.5),
+                q(0.75),
+                q(0.9),
+                q(0.99)
+            ));
+            Some(t)
+        }
+        None => None,
+    };
+    let refined = refine_by_shading(&mesh, &images, targets.as_ref(), &settings)?;
+    let moved = refined.moves.iter().map(|d| f64::from(*d)).sum::<f64>()
+        / refined.moves.len().max(1) as f64;
+    notes.push(format!(
+        "shading refinement: normals solved on {} of {} faces, interreflection constant {:.4}, \
+         anchor {:.4}, mean move {:+.5} ({:.1} s)",
+        refined.solved,
+        mesh.triangles.len(),
+        refined.interreflection,
+        settings.anchor,
+        moved,
+        t0.elapsed().as_secs_f64()
+    ));
+    Ok(refined.mesh)
 }
 
 /// Every view's depth map, with the samples that fail [`MeshConfig::depth_consistency`] (when
@@ -666,6 +863,13 @@ mod tests {
                 },
                 "mesh.voxel",
             ),
+            (
+                MeshConfig {
+                    shading_anchor: -1.0,
+                    ..Default::default()
+                },
+                "mesh.shading_anchor",
+            ),
         ] {
             let e = c.validate().unwrap_err().to_string();
             assert!(e.contains(word), "{e}");
@@ -685,5 +889,35 @@ mod tests {
         assert_eq!(c.voxel, Some(0.02));
         assert!(c.silhouette_carving && c.fuse_depth);
         assert!(serde_json::from_str::<MeshConfig>(r#"{"voxels": 1}"#).is_err());
+    }
+
+    /// The radiance given for the shading refinement must match the masks view for view.
+    #[test]
+    fn radiance_of_the_wrong_size_is_refused() {
+        let camera = Camera::look_at(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, Vec3::Y, 0.5, 8, 8);
+        let mut mask = vec![0.0f32; 64];
+        for y in 2..6 {
+            for x in 2..6 {
+                mask[y * 8 + x] = 1.0;
+            }
+        }
+        let views: Vec<(Camera, Vec<f32>)> = (0..3).map(|_| (camera, mask.clone())).collect();
+        let masks = MasksAlone::new(views).unwrap().expect("a cube of views");
+        let e = masks
+            .clone()
+            .with_radiance(vec![vec![0.5; 64]; 2])
+            .unwrap_err();
+        assert!(e.to_string().contains("radiance views"), "{e}");
+        let e = masks
+            .clone()
+            .with_radiance(vec![vec![0.5; 63]; 3])
+            .unwrap_err();
+        assert!(e.to_string().contains("radiance"), "{e}");
+        let mut nan = vec![vec![0.5; 64]; 3];
+        nan[1][7] = f32::NAN;
+        let e = masks.clone().with_radiance(nan).unwrap_err();
+        assert!(e.to_string().contains("non-finite"), "{e}");
+        let ok = masks.with_radiance(vec![vec![0.5; 64]; 3]).unwrap();
+        assert_eq!(ok.radiance.map(|r| r.len()), Some(3));
     }
 }

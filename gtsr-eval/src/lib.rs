@@ -1,7 +1,8 @@
 //! Evaluation for GTSR-rs: mesh metrics (chamfer distance, F-score, normal consistency),
 //! rendered depth and normals against a ground-truth mesh,
 //! image metrics (PSNR, SSIM), TSDF fusion and marching cubes for mesh extraction, visual
-//! hulls, error-against-run-time logs and plots, and markdown result tables.
+//! hulls, normals from the images' shading and the refinement of a mesh by them,
+//! error-against-run-time logs and plots, and markdown result tables.
 //!
 //! Meshes are [`gtsr_data::ply::TriMesh`] and cameras [`gtsr_data::Camera`] (OpenCV
 //! convention). Signed fields are negative inside and positive outside; extracted meshes are
@@ -19,7 +20,9 @@ pub mod hull;
 pub mod marching;
 pub mod mesh;
 pub mod metrics;
+pub mod refine;
 pub mod report;
+pub mod shading;
 pub mod timeline;
 pub mod tsdf;
 pub mod visible;

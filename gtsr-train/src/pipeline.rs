@@ -274,11 +274,13 @@ fn fusion_views(
 }
 
 /// With a mask on every training view: the masks at the dataset's own resolution (loaded again
-/// when training downscales) and their mesh; `None` otherwise.
+/// when training downscales), their mesh and, with `shading`, the views' linear radiance at
+/// that size (for the shading refinement); `None` otherwise.
 fn native_masks(
     data_dir: &Path,
     opts: &LoadOptions,
     scene: &Scene,
+    shading: bool,
 ) -> Result<Option<gtsr_eval::MasksAlone>> {
     if scene.train.iter().any(|v| v.mask.is_none()) {
         return Ok(None);
@@ -305,6 +307,15 @@ fn native_masks(
         }
         &native.train
     };
+    let radiance: Option<Vec<Vec<f32>>> = shading.then(|| {
+        views
+            .iter()
+            .map(|v| {
+                let srgb = v.encoding == gtsr_data::Encoding::Srgb;
+                gtsr_eval::shading::linear_radiance(&v.rgb, srgb, None)
+            })
+            .collect()
+    });
     let views = views
         .iter()
         .map(|v| {
@@ -314,7 +325,16 @@ fn native_masks(
                 .with_context(|| format!("view {} has no mask", v.name))
         })
         .collect::<Result<Vec<_>>>()?;
-    let masks = gtsr_eval::MasksAlone::new(views)?;
+    let masks = match gtsr_eval::MasksAlone::new(views)? {
+        Some(m) => match radiance {
+            Some(r) => Some(
+                m.with_radiance(r)
+                    .with_context(|| format!("the images of {}", data_dir.display()))?,
+            ),
+            None => Some(m),
+        },
+        None => None,
+    };
     if let Some(m) = &masks {
         println!(
             "masks alone at {}x{}: {} triangles, voxel {:.4} ({:.1} s)",
@@ -570,7 +590,13 @@ pub fn run(args: &Args) -> Result<Outcome> {
     {
         bail!("mesh.{name} applies to --fusion tsdf (the default is carve)");
     }
-    let masks = native_masks(&data_dir, &opts, &scene)?;
+    // The shading refinement reads the images as lit by one light at the camera, the PBR
+    // component's assumption.
+    let shading = mesh_config.shading_anchor > 0.0 && trainer.config().components.pbr;
+    if mesh_config.shading_anchor > 0.0 && !shading {
+        println!("shading refinement: off (the light is not known to be at the camera)");
+    }
+    let masks = native_masks(&data_dir, &opts, &scene, shading)?;
     let mesh_settings = MeshSettings {
         fusion_views: fusion_views(mesh_config.mesh_resolution, &data_dir, &opts, &scene)?,
         config: mesh_config,

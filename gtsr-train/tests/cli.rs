@@ -50,11 +50,24 @@ fn trains_a_tiny_scene_and_writes_every_output() {
         &out,
         &[
             &TINY_RUN[..],
-            &["--eval-points", "2", "--checkpoint-every", "0"],
+            &[
+                "--eval-points",
+                "2",
+                "--checkpoint-every",
+                "0",
+                "--shading-anchor",
+                "1",
+            ],
         ]
         .concat(),
     );
     assert!(o.status.success(), "{}", text(&o));
+    // The scene is lit from the camera and masked: the final mesh is refined by its shading.
+    assert!(
+        text(&o).contains("shading refinement: normals solved on"),
+        "{}",
+        text(&o)
+    );
     for f in [
         "mesh.ply",
         "gaussians.ply",
@@ -442,6 +455,7 @@ fn help_has_one_heading_per_settings_struct_and_no_experiments() {
         "--surface-opacity-floor",
         "--scatter-lambert",
         "--smooth-scatter",
+        "--shading-depth",
     ] {
         assert!(!help.contains(gone), "{gone} is an experiment\n{help}");
     }

@@ -1,6 +1,6 @@
 //! `diagnose-surface --concavity-gap`: what the training pixels show where the masks are blind,
 //! how good the run's normals are where the masks are off, and (`--refine-anchors`) how far
-//! those normals could refine the masks' mesh ([`crate::refine`]). For the development scenes
+//! those normals could refine the masks' mesh ([`gtsr_eval::refine`]). For the development scenes
 //! only: the ground truth diagnoses, it never trains.
 
 use anyhow::{Context, Result};
@@ -240,7 +240,7 @@ struct ViewMaps {
 }
 
 /// The refinement rows of `--refine-anchors`: the masks' mesh refined
-/// (`refine.rs`) by the normals of the run, of the truth, of the masks' mesh itself (what the
+/// (`gtsr_eval::refine`) by the normals of the run, of the truth, of the masks' mesh itself (what the
 /// refinement gives without any new information), and of the run only where it departs from
 /// the masks' own by more than 8 degrees; inward only and with a quarter footprint outward.
 fn refine_rows(
@@ -251,13 +251,12 @@ fn refine_rows(
     args: &DiagnoseSurfaceArgs,
 ) -> Result<String> {
     let (anchors, noise, blur) = (&args.refine_anchors, &args.refine_noise, &args.refine_blur);
-    use crate::refine::{
+    use gtsr_eval::refine::{
         FaceNormals, NormalView, RefineSettings, observed_normals, refine, refine_with_normals,
     };
     let cameras: Vec<gtsr_data::Camera> = scene.train.iter().map(|v| v.camera).collect();
     let footprint = median_pixel_footprint(cameras.iter(), Vec3::ZERO);
-    let score =
-        |mesh: &gtsr_data::ply::TriMesh| crate::refine::score_cells(mesh, gt, &cameras, hull);
+    let score = |mesh: &gtsr_data::ply::TriMesh| score_cells(mesh, gt, &cameras, hull);
     // The faces' observed normals from one normal map per view.
     let observe = |normals: Vec<&[f32]>| -> Result<FaceNormals> {
         let views: Vec<NormalView<'_>> = cameras
@@ -270,7 +269,7 @@ fn refine_rows(
                 mesh_depth: &m.hull_depth,
             })
             .collect();
-        observed_normals(hull, &views, 1, REFINE_MIN_COS)
+        Ok(observed_normals(hull, &views, 1, REFINE_MIN_COS)?)
     };
     let observed =
         |pick: fn(&ViewMaps) -> &[f32]| observe(maps.iter().map(pick).collect::<Vec<_>>());
@@ -296,8 +295,7 @@ fn refine_rows(
     let own = observed(|m| &m.hull_normal)?;
     // Per face, after the views are averaged: how far the run's and the masks' own normals
     // lie from the truth's.
-    let face_error =
-        |x: &FaceNormals| -> (f32, f64) { median_mean(&mut crate::refine::face_angles(x, &truth)) };
+    let face_error = |x: &FaceNormals| -> (f32, f64) { median_mean(&mut face_angles(x, &truth)) };
     let ((rm, ra), (om, oa)) = (face_error(&run), face_error(&own));
     let mut departing = own.clone();
     let cos = 8f32.to_radians().cos();
@@ -314,7 +312,7 @@ fn refine_rows(
         ("run beyond 8 deg of the masks' own", &departing),
     ];
     let mut md = String::from(
-        "\nThe masks' mesh refined by the observed normals (`xtask/src/refine.rs`; chamfer, \
+        "\nThe masks' mesh refined by the observed normals (`gtsr_eval::refine`; chamfer, \
          accuracy, completeness, hull-blind, x1e3; moves in scene units):\n\n",
     );
     let errors = format!(
@@ -418,7 +416,7 @@ fn refine_rows(
             args,
             &|label: &str,
               normals: &FaceNormals,
-              depth: &crate::refine::DepthTargets,
+              depth: &gtsr_eval::refine::DepthTargets,
               anchor: f32| {
                 let settings = RefineSettings {
                     anchor,
@@ -437,7 +435,12 @@ fn refine_rows(
 }
 
 /// One scored refinement with a depth term, as a table row.
-type DepthRow<'a> = dyn Fn(&str, &crate::refine::FaceNormals, &crate::refine::DepthTargets, f32) -> Result<String>
+type DepthRow<'a> = dyn Fn(
+        &str,
+        &gtsr_eval::refine::FaceNormals,
+        &gtsr_eval::refine::DepthTargets,
+        f32,
+    ) -> Result<String>
     + 'a;
 
 /// The rows of `--refine-depth`: per face, the offsets the depth maps observe against the
@@ -448,7 +451,7 @@ fn depth_rows(
     maps: &[ViewMaps],
     hull: &gtsr_data::ply::TriMesh,
     footprint: f32,
-    own: &crate::refine::FaceNormals,
+    own: &gtsr_eval::refine::FaceNormals,
     args: &DiagnoseSurfaceArgs,
     row: &DepthRow<'_>,
 ) -> Result<String> {
@@ -458,7 +461,7 @@ fn depth_rows(
         &args.refine_anchors,
     );
     let (truth_scales, truth_noise) = (&args.offset_truth_scale, &args.offset_truth_noise);
-    use crate::refine::{DepthTargets, DepthView, FaceOffsets, observed_offsets};
+    use gtsr_eval::refine::{DepthTargets, DepthView, FaceOffsets, observed_offsets};
     let offsets = |pick: &dyn Fn(&ViewMaps) -> Option<&[f32]>| -> Result<Option<FaceOffsets>> {
         let mut views = Vec::new();
         for (c, m) in cameras.iter().zip(maps) {
@@ -471,7 +474,7 @@ fn depth_rows(
                 mesh_depth: &m.hull_depth,
             });
         }
-        observed_offsets(hull, &views, REFINE_MIN_COS).map(Some)
+        Ok(Some(observed_offsets(hull, &views, REFINE_MIN_COS)?))
     };
     let truth = offsets(&|m| Some(&m.truth_depth))?.context("truth offsets")?;
     let blended = offsets(&|m| Some(&m.run_depth))?.context("run offsets")?;
@@ -584,7 +587,7 @@ fn depth_rows(
          | mean move |\n|---|---:|---:|---:|---:|---:|---:|\n",
     );
     for &length in lengths {
-        let mut runs: Vec<(String, DepthTargets, &crate::refine::FaceNormals)> = vec![(
+        let mut runs: Vec<(String, DepthTargets, &gtsr_eval::refine::FaceNormals)> = vec![(
             format!("truth / masks' own / {length}"),
             with_length(&truth_t, length),
             own,
@@ -716,3 +719,38 @@ const REFINE_MIN_COS: f32 = 0.2;
 
 /// Bin edges (footprints) of the truth's depth behind the masks' depth, for the normal table.
 const NORMAL_BINS: [f32; 5] = [-0.25, 0.25, 0.5, 1.0, 3.0];
+
+/// A refined mesh scored against the ground truth (what one training camera sees), as the
+/// table cells `chamfer | accuracy | completeness | hull-blind`, x1e3.
+pub(crate) fn score_cells(
+    mesh: &gtsr_data::ply::TriMesh,
+    gt: &gtsr_data::ply::TriMesh,
+    cameras: &[gtsr_data::Camera],
+    hull: &gtsr_data::ply::TriMesh,
+) -> Result<String> {
+    let (seen, _) = gtsr_eval::score_against_ground_truth(mesh, gt, cameras, Some(hull))?;
+    Ok(format!(
+        "{:.3} | {:.3} | {:.3} | {:.2}",
+        1e3 * seen.chamfer,
+        1e3 * seen.accuracy,
+        1e3 * seen.completeness,
+        1e3 * seen.hull_blind.map_or(f64::NAN, |b| b.blind)
+    ))
+}
+
+/// Per face where both sets have a normal (weight > 0), the angle between them in degrees.
+pub(crate) fn face_angles(
+    x: &gtsr_eval::refine::FaceNormals,
+    truth: &gtsr_eval::refine::FaceNormals,
+) -> Vec<f32> {
+    (0..x.normal.len())
+        .filter(|f| x.weight[*f] > 0.0 && truth.weight[*f] > 0.0)
+        .map(|f| {
+            x.normal[f]
+                .dot(truth.normal[f])
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees()
+        })
+        .collect()
+}

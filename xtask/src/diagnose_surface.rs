@@ -51,7 +51,7 @@ pub struct DiagnoseSurfaceArgs {
     #[arg(long, default_value_t = 0.0)]
     pub concavity_gap: f32,
     /// With `--concavity-gap`: refine the masks' mesh with the normals the training views
-    /// observe (`refine.rs`), once with the run's and once with the truth's, at each
+    /// observe (`gtsr_eval::refine`), once with the run's and once with the truth's, at each
     /// of these anchors (scene units), and score the results.
     #[arg(long, num_args = 0..)]
     pub refine_anchors: Vec<f32>,

@@ -5,7 +5,6 @@ mod concavity;
 mod diagnose_surface;
 mod fusion_ceiling;
 mod gen_scene;
-mod refine;
 mod shading;
 mod stability;
 

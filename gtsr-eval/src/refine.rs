@@ -1,27 +1,28 @@
-//! A diagnostic for `diagnose-surface --refine-anchors`: how much of the masks' error a set of
-//! observed normals could take off. Normal-guided refinement of a mesh that bounds the object
-//! from outside (the masks' mesh):
-//! each vertex moves along its normal, inward only, so that the faces' normals agree with the
-//! normals the views observe ([`observed_normals`]).
+//! Normal-guided refinement of a mesh that bounds the object from outside (the masks' mesh):
+//! each vertex moves along its normal so that the faces' normals agree with target normals
+//! (observed in normal maps, [`observed_normals`], or solved from the images' shading,
+//! [`crate::shading`]), optionally pulled towards offsets observed in depth maps
+//! ([`observed_offsets`]).
 //!
 //! Displacing the vertices of a face by `d_k` along its normal `N` tilts the normal by the
 //! in-plane gradient of the linear interpolant of `d` (to first order, `N' = N - grad d`). So
 //! the displacements that make the normals `n*` are those whose gradient is `-t`, with `t` the
 //! part of `n*` tangent to the face: a Poisson problem on the mesh,
 //!
-//! `min_d  sum_f w_f A_f |grad_f d + t_f|^2 + mu sum_i m_i d_i^2,   d_i <= 0`,
+//! `min_d  sum_f w_f A_f |grad_f d + t_f|^2 + mu sum_i m_i d_i^2,   d_i <= c`,
 //!
 //! with `A_f` the face areas, `m_i` the vertex areas (a third of the faces around), `w_f` the
-//! weight of the face's observed normal, and `mu = 1 / anchor^2` pulling every vertex back to
-//! where it was over the length `anchor`. It is solved by conjugate gradients; the vertices
-//! the solution would push outward are held in place and the rest solved again (an active
-//! set). Faces no view observes keep their own normal as the target (`t = 0`).
+//! weight of the face's target normal, `mu = 1 / anchor^2` pulling every vertex back to
+//! where it was over the length `anchor`, and `c` the most a vertex may move outward. It is
+//! solved by conjugate gradients; the vertices the solution would push beyond `c` are held
+//! there and the rest solved again (an active set). Faces without a target keep their own
+//! normal (`t = 0`).
 
 use glam::Vec3;
 use gtsr_data::Camera;
 use gtsr_data::ply::TriMesh;
 
-use anyhow::{Result, bail};
+use crate::error::{EvalError, Result};
 
 /// Settings of [`refine_with_normals`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -90,11 +91,11 @@ pub fn observed_normals(
     for v in views {
         let n = v.camera.width as usize * v.camera.height as usize;
         if v.normal.len() != 3 * n || v.mesh_depth.len() != n {
-            bail!(
+            return Err(EvalError::InvalidArgument(format!(
                 "normal view: expected 3 x {n} normals and {n} depths, got {} and {}",
                 v.normal.len(),
                 v.mesh_depth.len()
-            );
+            )));
         }
     }
     let mut sum = vec![Vec3::ZERO; nf];
@@ -126,38 +127,6 @@ pub fn observed_normals(
         }
     }
     Ok(out)
-}
-
-/// A refined mesh scored against the ground truth (what one training camera sees), as the
-/// table cells `chamfer | accuracy | completeness | hull-blind`, x1e3.
-pub(crate) fn score_cells(
-    mesh: &TriMesh,
-    gt: &TriMesh,
-    cameras: &[Camera],
-    hull: &TriMesh,
-) -> Result<String> {
-    let (seen, _) = gtsr_eval::score_against_ground_truth(mesh, gt, cameras, Some(hull))?;
-    Ok(format!(
-        "{:.3} | {:.3} | {:.3} | {:.2}",
-        1e3 * seen.chamfer,
-        1e3 * seen.accuracy,
-        1e3 * seen.completeness,
-        1e3 * seen.hull_blind.map_or(f64::NAN, |b| b.blind)
-    ))
-}
-
-/// Per face where both sets have a normal (weight > 0), the angle between them in degrees.
-pub(crate) fn face_angles(x: &FaceNormals, truth: &FaceNormals) -> Vec<f32> {
-    (0..x.normal.len())
-        .filter(|f| x.weight[*f] > 0.0 && truth.weight[*f] > 0.0)
-        .map(|f| {
-            x.normal[f]
-                .dot(truth.normal[f])
-                .clamp(-1.0, 1.0)
-                .acos()
-                .to_degrees()
-        })
-        .collect()
 }
 
 /// The faces of `mesh` one view observes: those facing the camera (cosine at least `min_cos`)
@@ -237,11 +206,11 @@ pub fn observed_offsets(
         let cam = v.camera;
         let n = cam.width as usize * cam.height as usize;
         if v.depth.len() != n || v.mesh_depth.len() != n {
-            bail!(
+            return Err(EvalError::InvalidArgument(format!(
                 "depth view: expected {n} depths and {n} mesh depths, got {} and {}",
                 v.depth.len(),
                 v.mesh_depth.len()
-            );
+            )));
         }
         let w = cam.width as usize;
         for (f, p, cos) in visible_faces(mesh, cam, v.mesh_depth, min_cos) {
@@ -273,6 +242,40 @@ pub fn observed_offsets(
         out.views[f] = m as u32;
     }
     Ok(out)
+}
+
+/// Depth targets from observed offsets that share an unknown bias (a rendered depth that lies
+/// behind or before the surface throughout): each face's offset less the median over the faces
+/// that `min_views` views observe (the bias, assuming most of `mesh` lies on the surface), and
+/// trusted only inward beyond `threshold` (scene units): an offset `o` asks for
+/// `min(o + threshold, 0)`, so the faces within the threshold are asked to stay. Faces fewer
+/// views observe carry no weight. Returns the targets (of the given `length`) and the bias.
+pub fn debiased_depth_targets(
+    offsets: &FaceOffsets,
+    min_views: u32,
+    threshold: f32,
+    length: f32,
+) -> (DepthTargets, f32) {
+    let mut kept: Vec<f32> = (offsets.offset.iter().zip(&offsets.views))
+        .filter(|(_, v)| **v >= min_views)
+        .map(|(o, _)| *o)
+        .collect();
+    let bias = if kept.is_empty() {
+        0.0
+    } else {
+        let m = kept.len() / 2;
+        *kept.select_nth_unstable_by(m, f32::total_cmp).1
+    };
+    let targets = DepthTargets {
+        offset: (offsets.offset.iter())
+            .map(|o| (o - bias + threshold).min(0.0))
+            .collect(),
+        weight: (offsets.views.iter())
+            .map(|v| if *v >= min_views { 1.0 } else { 0.0 })
+            .collect(),
+        length,
+    };
+    (targets, bias)
 }
 
 /// Per face: the gradients of the three hat functions and the area.
@@ -357,30 +360,36 @@ pub fn refine_anchored(
     if anchor_scale.is_some_and(|a| {
         a.len() != mesh.positions.len() || a.iter().any(|v| !(v.is_finite() && *v >= 0.0))
     }) {
-        bail!("anchor scale: one finite, non-negative value per vertex expected");
+        return Err(EvalError::InvalidArgument(
+            "anchor scale: one finite, non-negative value per vertex expected".into(),
+        ));
     }
     if let Some(dt) = depth {
         if dt.offset.len() != nf || dt.weight.len() != nf {
-            bail!(
+            return Err(EvalError::InvalidArgument(format!(
                 "depth targets: expected {nf}, got {} offsets and {} weights",
                 dt.offset.len(),
                 dt.weight.len()
-            );
+            )));
         }
         if !(dt.length > 0.0 && dt.length.is_finite()) {
-            bail!("depth targets: the length must be positive");
+            return Err(EvalError::InvalidArgument(
+                "depth targets: the length must be positive".into(),
+            ));
         }
     }
     let nv = mesh.positions.len();
     if targets.normal.len() != nf || targets.weight.len() != nf {
-        bail!(
+        return Err(EvalError::InvalidArgument(format!(
             "face normals: expected {nf}, got {} normals and {} weights",
             targets.normal.len(),
             targets.weight.len()
-        );
+        )));
     }
     if !(settings.anchor > 0.0 && settings.max_depth > 0.0 && settings.max_tilt > 0.0) {
-        bail!("refine settings: anchor, max_depth and max_tilt must be positive");
+        return Err(EvalError::InvalidArgument(
+            "refine settings: anchor, max_depth and max_tilt must be positive".into(),
+        ));
     }
     let geo = face_geometry(mesh);
     // Vertex normals (area-weighted) and areas.
@@ -752,5 +761,21 @@ mod tests {
             length: 0.01,
         };
         assert!(refine(&mesh, &flat, Some(&short), &settings).is_err());
+    }
+
+    /// The offsets' common bias is removed, the threshold asks the faces within it to stay,
+    /// and the faces too few views observe carry no weight.
+    #[test]
+    fn debiased_depth_targets_remove_the_bias_and_keep_the_inward_wishes() {
+        let offsets = FaceOffsets {
+            offset: vec![0.01, 0.011, 0.009, 0.01, -0.03, 0.5],
+            views: vec![5, 5, 5, 5, 5, 1],
+        };
+        let (t, bias) = debiased_depth_targets(&offsets, 3, 0.002, 0.05);
+        assert!((bias - 0.01).abs() < 1e-6, "{bias}");
+        assert_eq!(t.length, 0.05);
+        assert_eq!(t.weight, vec![1.0, 1.0, 1.0, 1.0, 1.0, 0.0]);
+        assert_eq!(&t.offset[..4], &[0.0; 4]);
+        assert!((t.offset[4] + 0.038).abs() < 1e-6, "{}", t.offset[4]);
     }
 }

@@ -1,0 +1,1101 @@
+//! Normals from the images' shading under a light at the camera (photometric stereo whose
+//! light moves with each view), for the refinement of the masks' mesh ([`crate::refine`]).
+//!
+//! With a point light at the camera, a Lambertian surface point `x` of normal `n` and albedo
+//! `rho` seen from the eye `e` has the linear radiance `I = rho L (n . w) / r^2`, with
+//! `w = (e - x) / r` and `r = |e - x|`. So `I r^2 = b . w` with `b = rho L n`: every view that
+//! sees a face gives one linear equation in `b`, and the light directions of the views that see
+//! it span a cone wide enough to solve for `b` by least squares. The normal is `b / |b|`; the
+//! albedo drops out. A face whose centroid lies off the true surface (a lid of the masks' mesh
+//! over a dent) reads, in each view, the shading of the surface point its pixel shows; those
+//! points differ a little from view to view (the parallax of the lid's height), so the normal
+//! it gets is the truth's blurred over that parallax.
+//!
+//! Two things break the model. Light scattered under the surface leaves it away from where it
+//! entered, which blurs the shading and flattens its fall-off with the angle
+//! (`ShadingSettings::response` learns that fall-off for the scene). And where other parts of
+//! the object face a face, they light it too, in the views that light them: that light does
+//! not follow `n . w`, and Lambert's fit leans towards the eyes that add it
+//! (`ShadingSettings::interreflection` models it from the images, one bounce).
+//!
+//! [`refine_by_shading`] puts it together: the shading normals of a mesh, with the
+//! interreflection modelled, and the mesh refined by them.
+
+use glam::{Mat3, Mat4, Vec3, Vec4};
+use gtsr_data::Camera;
+use gtsr_data::image_io::srgb_to_linear;
+use gtsr_data::ply::TriMesh;
+
+use crate::error::{EvalError, Result};
+use crate::mesh::{face_centroid, face_normal_scaled};
+use crate::refine::{DepthTargets, FaceNormals, RefineSettings, refine, visible_faces};
+
+/// One view for [`shading_normals`].
+pub struct ShadingView<'a> {
+    /// The camera; the light sits at its centre.
+    pub camera: &'a Camera,
+    /// Linear radiance, one value per pixel (the mean of the channels), row-major.
+    pub radiance: &'a [f32],
+    /// Object mask per pixel (`None`: every pixel counts).
+    pub mask: Option<&'a [f32]>,
+    /// The mesh's own z-depth through each pixel centre (`0` on a miss), for visibility.
+    pub mesh_depth: &'a [f32],
+}
+
+/// Settings of [`shading_normals`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ShadingSettings {
+    /// The smallest cosine between a face's normal and its direction to the camera.
+    pub min_cos: f32,
+    /// The fewest views that must see a face.
+    pub min_views: usize,
+    /// The least mask value of a pixel that counts (pixels on the silhouette mix background).
+    pub min_mask: f32,
+    /// Ridge weight, relative to the mean eigenvalue of the normal equations, pulling the
+    /// solution towards the face's own normal at the albedo that fits it best: it keeps the
+    /// solve stable where the views' directions span a narrow cone.
+    pub ridge: f32,
+    /// Fit `I r^2 = b . w + a` instead: the constant `a` takes the light that comes out of the
+    /// face whatever its angle to the light (scattered under the surface from around it).
+    pub ambient: bool,
+    /// Knots of a response to the angle fitted on the scene (0: Lambert's cosine). With the
+    /// light at the camera, any isotropic reflectance gives `I r^2 = rho g(n . w)` for one
+    /// function `g` of the angle; the fit learns `g` (piecewise linear over `[min_cos, 1]`,
+    /// `g(1) = 1`) from every face with its own normal, then solves each face's normal and
+    /// albedo under it (Gauss-Newton from the Lambertian solution).
+    pub response: usize,
+    /// Model the light the rest of the object sends each face (needs the `surroundings` of
+    /// [`shading_normals`]).
+    pub interreflection: bool,
+    /// With `interreflection`: this constant `c` instead of the calibrated one.
+    pub interreflection_c: Option<f32>,
+}
+
+impl Default for ShadingSettings {
+    fn default() -> Self {
+        ShadingSettings {
+            min_cos: 0.3,
+            min_views: 6,
+            min_mask: 0.99,
+            ridge: 0.05,
+            ambient: false,
+            response: 0,
+            interreflection: false,
+            interreflection_c: None,
+        }
+    }
+}
+
+/// What [`shading_normals`] solves.
+pub struct ShadingFit {
+    /// Per face, the normal that the shading explains, weight 1 where solved, else 0.
+    pub normals: FaceNormals,
+    /// Per face, the mean unit direction to the eyes of the views that see it (zero where none
+    /// does).
+    pub eyes: Vec<Vec3>,
+    /// The fitted response `g` at its knots (`ShadingSettings::response`), empty under
+    /// Lambert's cosine.
+    pub response: Vec<f32>,
+    /// The interreflection constant `c` used (`ShadingSettings::interreflection`; 0 off).
+    pub interreflection: f32,
+}
+
+/// A piecewise-linear function of the cosine on `knots` evenly spaced points of
+/// `[lo, 1]`, extended linearly beyond them and never negative.
+struct Response {
+    lo: f32,
+    g: Vec<f32>,
+}
+
+impl Response {
+    /// The segment of `c` and its weight on the segment's upper knot.
+    fn locate(&self, c: f32) -> (usize, f32) {
+        let k = self.g.len() - 1;
+        let x = (c - self.lo) / (1.0 - self.lo) * k as f32;
+        let i = (x.floor().max(0.0) as usize).min(k - 1);
+        (i, x - i as f32)
+    }
+
+    /// `g(c)` and `g'(c)`.
+    fn eval(&self, c: f32) -> (f32, f32) {
+        let (i, t) = self.locate(c);
+        let h = (1.0 - self.lo) / (self.g.len() - 1) as f32;
+        let v = self.g[i] + t * (self.g[i + 1] - self.g[i]);
+        if v <= 0.0 {
+            (0.0, 0.0)
+        } else {
+            (v, (self.g[i + 1] - self.g[i]) / h)
+        }
+    }
+}
+
+/// One view's reading of one face: the direction to the eye and `I r^2`.
+#[derive(Clone, Copy)]
+struct Sample {
+    w: Vec3,
+    y: f32,
+    /// The interreflected irradiance times `r^2` (0 when not modelled).
+    e: f32,
+}
+
+/// Fits the response on every face's samples with the faces' own normals (`own`), the
+/// albedos and the knots in turn (least squares each), normalised to `g(1) = 1`.
+fn fit_response(
+    start: &[usize],
+    samples: &[Sample],
+    own: &[Vec3],
+    lo: f32,
+    knots: usize,
+) -> Response {
+    let mut resp = Response {
+        lo,
+        g: (0..knots)
+            .map(|k| lo + (1.0 - lo) * k as f32 / (knots - 1) as f32)
+            .collect(),
+    };
+    let nf = own.len();
+    let mut rho = vec![0.0f64; nf];
+    for _ in 0..20 {
+        for f in 0..nf {
+            let (mut num, mut den) = (0.0f64, 0.0f64);
+            for s in &samples[start[f]..start[f + 1]] {
+                let g = f64::from(resp.eval(own[f].dot(s.w)).0);
+                num += g * f64::from(s.y);
+                den += g * g;
+            }
+            rho[f] = if den > 0.0 { num / den } else { 0.0 };
+        }
+        // Knots: y = rho sum_k B_k(c) g_k; neighbouring hats alone overlap, so the normal
+        // equations are tridiagonal.
+        let mut diag = vec![0.0f64; knots];
+        let mut off = vec![0.0f64; knots - 1];
+        let mut atb = vec![0.0f64; knots];
+        for f in 0..nf {
+            if rho[f] <= 0.0 {
+                continue;
+            }
+            for s in &samples[start[f]..start[f + 1]] {
+                let (i, t) = resp.locate(own[f].dot(s.w));
+                let (a, b) = (rho[f] * f64::from(1.0 - t), rho[f] * f64::from(t));
+                diag[i] += a * a;
+                off[i] += a * b;
+                diag[i + 1] += b * b;
+                atb[i] += a * f64::from(s.y);
+                atb[i + 1] += b * f64::from(s.y);
+            }
+        }
+        let trace = diag.iter().sum::<f64>() / knots as f64;
+        for d in &mut diag {
+            *d += 1e-9 * trace.max(f64::MIN_POSITIVE);
+        }
+        let Some(g) = solve_tridiagonal(diag, &off, atb) else {
+            break;
+        };
+        let top = g[knots - 1];
+        if !(top > 0.0 && top.is_finite()) {
+            break;
+        }
+        resp.g = g.iter().map(|v| (*v / top) as f32).collect();
+    }
+    resp
+}
+
+/// Solves the symmetric positive definite tridiagonal system with diagonal `diag` and
+/// off-diagonal `off` (`off[k]` couples `k` and `k + 1`) by elimination (`None` when singular).
+fn solve_tridiagonal(mut diag: Vec<f64>, off: &[f64], mut rhs: Vec<f64>) -> Option<Vec<f64>> {
+    let n = diag.len();
+    for k in 1..n {
+        if diag[k - 1].abs() <= f64::MIN_POSITIVE {
+            return None;
+        }
+        let m = off[k - 1] / diag[k - 1];
+        diag[k] -= m * off[k - 1];
+        rhs[k] -= m * rhs[k - 1];
+    }
+    let mut x = vec![0.0; n];
+    for k in (0..n).rev() {
+        let next = if k + 1 < n { off[k] * x[k + 1] } else { 0.0 };
+        x[k] = (rhs[k] - next) / diag[k];
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+/// The normal (and albedo) that minimise `sum (y - rho g(n . w))^2` plus a ridge of weight
+/// `ridge` (relative to the tangent curvature) towards `n0`, by Gauss-Newton from `n`.
+fn fit_normal(samples: &[Sample], resp: &Response, mut n: Vec3, n0: Vec3, ridge: f32) -> Vec3 {
+    let mut rho = {
+        let (mut num, mut den) = (0.0f32, 0.0f32);
+        for s in samples {
+            let g = resp.eval(n.dot(s.w)).0;
+            num += g * s.y;
+            den += g * g;
+        }
+        if den <= 0.0 {
+            return Vec3::ZERO;
+        }
+        num / den
+    };
+    for _ in 0..10 {
+        let (e1, e2) = n.any_orthonormal_pair();
+        let mut m = Mat3::ZERO;
+        let mut rhs = Vec3::ZERO;
+        for s in samples {
+            let (g, dg) = resp.eval(n.dot(s.w));
+            let j = Vec3::new(g, rho * dg * e1.dot(s.w), rho * dg * e2.dot(s.w));
+            let r = s.y - rho * g;
+            m += Mat3::from_cols(j * j.x, j * j.y, j * j.z);
+            rhs += r * j;
+        }
+        let lambda = ridge * 0.5 * (m.y_axis.y + m.z_axis.z);
+        m += Mat3::from_diagonal(Vec3::new(0.0, lambda, lambda));
+        rhs += lambda * Vec3::new(0.0, e1.dot(n0 - n), e2.dot(n0 - n));
+        if m.determinant().abs() <= f32::MIN_POSITIVE {
+            return Vec3::ZERO;
+        }
+        let d = m.inverse() * rhs;
+        rho += d.x;
+        let next = (n + d.y * e1 + d.z * e2).normalize_or_zero();
+        let moved = next.distance(n);
+        n = next;
+        if moved < 1e-6 || !n.is_finite() {
+            break;
+        }
+    }
+    n
+}
+
+/// What the rest of the object shows each face: where rays cast over the face's outer
+/// hemisphere (cosine-weighted) first hit the mesh again.
+pub struct Surroundings {
+    /// Rays cast per face.
+    pub rays: usize,
+    /// Face `f`'s hits are `points[start[f]..start[f + 1]]`.
+    pub start: Vec<usize>,
+    /// The hit points.
+    pub points: Vec<Vec3>,
+}
+
+impl Surroundings {
+    /// Per face, the fraction of its rays that leave the mesh (1: nothing faces it).
+    pub fn openness(&self) -> Vec<f32> {
+        self.start
+            .windows(2)
+            .map(|w| 1.0 - (w[1] - w[0]) as f32 / self.rays as f32)
+            .collect()
+    }
+}
+
+/// Casts `rays` cosine-weighted rays over each face's outer hemisphere from its centroid.
+pub fn surroundings(mesh: &TriMesh, rays: usize) -> Result<Surroundings> {
+    use rayon::prelude::*;
+    let caster = crate::MeshRaycaster::new(mesh, "the mesh")?;
+    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+    let hits: Vec<Vec<Vec3>> = mesh
+        .triangles
+        .par_iter()
+        .enumerate()
+        .map(|(f, t)| {
+            let n = face_normal_scaled(mesh, *t).normalize_or_zero();
+            if n == Vec3::ZERO {
+                return Vec::new();
+            }
+            let (e1, e2) = n.any_orthonormal_pair();
+            let o = face_centroid(mesh, *t) + 1e-4 * n;
+            let spin = (f as f32 * 0.618_034).fract() * std::f32::consts::TAU;
+            (0..rays)
+                .filter_map(|k| {
+                    // Uniform on the disc, lifted onto the hemisphere.
+                    let r = ((k as f32 + 0.5) / rays as f32).sqrt();
+                    let a = k as f32 * golden + spin;
+                    let d = (r * a.cos()) * e1 + (r * a.sin()) * e2 + (1.0 - r * r).sqrt() * n;
+                    let d = d.normalize();
+                    caster.first_hit(o, d).map(|(t, _)| o + t * d)
+                })
+                .collect()
+        })
+        .collect();
+    let mut start = Vec::with_capacity(hits.len() + 1);
+    start.push(0);
+    for h in &hits {
+        start.push(start.last().copied().unwrap_or(0) + h.len());
+    }
+    Ok(Surroundings {
+        rays,
+        start,
+        points: hits.into_iter().flatten().collect(),
+    })
+}
+
+/// Per face of `mesh`, the normal that the shading of the views explains best (module
+/// documentation), with weight 1 where at least `min_views` views see the face and the solved
+/// normal faces outward (towards the face's own normal), else 0; and the mean direction to
+/// the eyes that see it. Visibility as in [`crate::refine::observed_normals`].
+///
+/// With `surroundings` and `ShadingSettings::interreflection`, each reading also gets the
+/// light the rest of the object sends the face in that view: the irradiance `E` from the
+/// surrounding points the view shows (their radiance read in the image, as if they glowed
+/// alike in every direction; points the view does not show are unlit, the light being at the
+/// camera), so `I r^2 = b . w + c |b| E r^2`, with one constant `c` for the scene (the
+/// inverse of `pi` times the light's power). Unless `ShadingSettings::interreflection_c`
+/// gives it, `c` is calibrated on the images and the masks' mesh alone: the value at which, on
+/// the faces less than 90 % open, the solved normals lean neither towards nor away from the
+/// eyes that see them, relative to the faces' own normals where the two agree within 10
+/// degrees (0 where no face is that closed).
+pub fn shading_normals(
+    mesh: &TriMesh,
+    views: &[ShadingView<'_>],
+    surroundings: Option<&Surroundings>,
+    settings: &ShadingSettings,
+) -> Result<ShadingFit> {
+    let nf = mesh.triangles.len();
+    for v in views {
+        let n = v.camera.width as usize * v.camera.height as usize;
+        if v.radiance.len() != n || v.mesh_depth.len() != n || v.mask.is_some_and(|m| m.len() != n)
+        {
+            return Err(EvalError::InvalidArgument(format!(
+                "shading view: expected {n} radiances, depths and mask values, got {}, {} and {:?}",
+                v.radiance.len(),
+                v.mesh_depth.len(),
+                v.mask.map(<[f32]>::len)
+            )));
+        }
+    }
+    if let Some(s) = surroundings
+        && s.start.len() != nf + 1
+    {
+        return Err(EvalError::InvalidArgument(format!(
+            "shading: surroundings of {} faces for a mesh of {nf}",
+            s.start.len().saturating_sub(1)
+        )));
+    }
+    let own = own_normals(mesh).normal;
+    let centroids: Vec<Vec3> = mesh
+        .triangles
+        .iter()
+        .map(|t| face_centroid(mesh, *t))
+        .collect();
+    let interreflection = surroundings.filter(|_| settings.interreflection);
+    let mut eyes = vec![Vec3::ZERO; nf];
+    let mut readings: Vec<(u32, Sample)> = Vec::new();
+    for v in views {
+        let cam = v.camera;
+        let eye = cam.centre();
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        // The radiance of a surrounding point in this view, 0 where the view does not show it.
+        let shown = |q: Vec3| -> f32 {
+            let Some((uv, depth)) = cam.project(q) else {
+                return 0.0;
+            };
+            if !(uv.x >= 0.0 && uv.y >= 0.0 && (uv.x as usize) < w && (uv.y as usize) < h) {
+                return 0.0;
+            }
+            let p = uv.y as usize * w + uv.x as usize;
+            let z = v.mesh_depth[p];
+            if z > 0.0 && (depth - z).abs() <= 2.0 * depth / cam.fx && v.radiance[p].is_finite() {
+                v.radiance[p]
+            } else {
+                0.0
+            }
+        };
+        for (f, p, _) in visible_faces(mesh, cam, v.mesh_depth, settings.min_cos) {
+            let d = eye - centroids[f];
+            let r2 = d.length_squared();
+            let w = d / r2.sqrt();
+            eyes[f] += w;
+            if v.mask.is_some_and(|m| m[p] < settings.min_mask) {
+                continue;
+            }
+            let i = v.radiance[p];
+            if !i.is_finite() {
+                continue;
+            }
+            let e = interreflection.map_or(0.0, |s| {
+                let pts = &s.points[s.start[f]..s.start[f + 1]];
+                std::f32::consts::PI / s.rays as f32 * pts.iter().map(|q| shown(*q)).sum::<f32>()
+            });
+            readings.push((
+                f as u32,
+                Sample {
+                    w,
+                    y: i * r2,
+                    e: e * r2,
+                },
+            ));
+        }
+    }
+    // Each face's readings, contiguous.
+    let mut start = vec![0usize; nf + 1];
+    for (f, _) in &readings {
+        start[*f as usize + 1] += 1;
+    }
+    for f in 0..nf {
+        start[f + 1] += start[f];
+    }
+    let mut samples = vec![
+        Sample {
+            w: Vec3::ZERO,
+            y: 0.0,
+            e: 0.0,
+        };
+        readings.len()
+    ];
+    let mut next = start.clone();
+    for (f, s) in readings {
+        samples[next[f as usize]] = s;
+        next[f as usize] += 1;
+    }
+    drop(next);
+    // The linear fit of one face with the interreflected part `c |b| E r^2` taken off at the
+    // `|b|` given.
+    let solve = |f: usize, c: f32, b_prev: f32| -> Option<Vec3> {
+        let s = &samples[start[f]..start[f + 1]];
+        if s.len() < settings.min_views.max(3) {
+            return None;
+        }
+        let n0 = own[f];
+        let mut ata = Mat4::ZERO;
+        let mut atb = Vec4::ZERO;
+        let (mut c2, mut cy) = (0.0f32, 0.0f32);
+        for x in s {
+            let y = x.y - c * b_prev * x.e;
+            let a = x.w.extend(1.0);
+            ata += Mat4::from_cols(a * a.x, a * a.y, a * a.z, a * a.w);
+            atb += y * a;
+            let cw = n0.dot(x.w);
+            c2 += cw * cw;
+            cy += cw * y;
+        }
+        if c2 <= 0.0 {
+            return None;
+        }
+        let albedo = cy / c2;
+        let lambda = settings.ridge * (ata.x_axis.x + ata.y_axis.y + ata.z_axis.z) / 3.0;
+        if settings.ambient {
+            // The constant gets a ridge towards 0 as well.
+            let m = ata + Mat4::from_diagonal(Vec4::splat(lambda));
+            if m.determinant().abs() <= f32::EPSILON * lambda.powi(4).max(f32::MIN_POSITIVE) {
+                return None;
+            }
+            Some((m.inverse() * (atb + lambda * albedo * n0.extend(0.0))).truncate())
+        } else {
+            let m = Mat3::from_mat4(ata) + Mat3::from_diagonal(Vec3::splat(lambda));
+            if m.determinant().abs() <= f32::EPSILON * lambda.powi(3).max(f32::MIN_POSITIVE) {
+                return None;
+            }
+            Some(m.inverse() * (atb.truncate() + lambda * albedo * n0))
+        }
+    };
+    let lambert: Vec<Option<Vec3>> = (0..nf).map(|f| solve(f, 0.0, 0.0)).collect();
+    // The faces' fits at a given `c` (each face's `|b|` in turn).
+    let at = |c: f32| -> Vec<Option<Vec3>> {
+        let mut b = lambert.clone();
+        for _ in 0..4 {
+            b = (0..nf)
+                .map(|f| b[f].and_then(|bf| solve(f, c, bf.length())))
+                .collect();
+        }
+        b
+    };
+    let eyes: Vec<Vec3> = eyes.into_iter().map(Vec3::normalize_or_zero).collect();
+    let (b, c) = match (interreflection, settings.interreflection_c) {
+        (None, _) => (lambert, 0.0),
+        (Some(_), Some(c)) => (at(c), c),
+        (Some(s), None) => {
+            // `c` such that, on the faces other parts of the object face (less than 90 %
+            // open), the normals lean neither towards nor away from the eyes that see them,
+            // measured against the faces' own normals where the two agree within 10 degrees.
+            let open = s.openness();
+            let lean = |b: &[Option<Vec3>]| -> f64 {
+                let agree = 10f32.to_radians().cos();
+                let (mut sum, mut n) = (0.0f64, 0usize);
+                for f in 0..nf {
+                    let Some(bf) = b[f] else { continue };
+                    let (x, o) = (bf.normalize_or_zero(), own[f]);
+                    let m = eyes[f] - eyes[f].dot(o) * o;
+                    if open[f] >= 0.9 || x.dot(o) < agree || m.length() < 1e-3 {
+                        continue;
+                    }
+                    sum += f64::from((x - o).dot(m.normalize()));
+                    n += 1;
+                }
+                if n == 0 { 0.0 } else { sum / n as f64 }
+            };
+            let mut prev = (0.0f32, lean(&lambert));
+            let mut chosen = None;
+            for k in 1..=40 {
+                let c = 0.01 * k as f32;
+                let l = lean(&at(c));
+                if l <= 0.0 {
+                    let t = prev.1 / (prev.1 - l).max(f64::MIN_POSITIVE);
+                    chosen = Some(prev.0 + (c - prev.0) * t as f32);
+                    break;
+                }
+                prev = (c, l);
+            }
+            let c = chosen.unwrap_or(0.0);
+            (at(c), c)
+        }
+    };
+    if interreflection.is_some() {
+        // The readings less their interreflected part, for the response's fit.
+        for f in 0..nf {
+            let m = b[f].map_or(0.0, Vec3::length);
+            for x in &mut samples[start[f]..start[f + 1]] {
+                x.y -= c * m * x.e;
+            }
+        }
+    }
+    let resp = (settings.response >= 2)
+        .then(|| fit_response(&start, &samples, &own, settings.min_cos, settings.response));
+    let mut out = FaceNormals {
+        normal: vec![Vec3::ZERO; nf],
+        weight: vec![0.0; nf],
+    };
+    for f in 0..nf {
+        let Some(bf) = b[f] else { continue };
+        let n0 = own[f];
+        let mut n = bf.normalize_or_zero();
+        if let Some(resp) = &resp {
+            let from = if n.dot(n0) > 0.0 { n } else { n0 };
+            n = fit_normal(
+                &samples[start[f]..start[f + 1]],
+                resp,
+                from,
+                n0,
+                settings.ridge,
+            );
+        }
+        if n.dot(n0) > 0.0 && n.is_finite() {
+            out.normal[f] = n;
+            out.weight[f] = 1.0;
+        }
+    }
+    Ok(ShadingFit {
+        normals: out,
+        eyes,
+        response: resp.map(|r| r.g).unwrap_or_default(),
+        interreflection: c,
+    })
+}
+
+/// The mesh's own face normals, weight 1.
+pub fn own_normals(mesh: &TriMesh) -> FaceNormals {
+    let normal: Vec<Vec3> = mesh
+        .triangles
+        .iter()
+        .map(|t| face_normal_scaled(mesh, *t).normalize_or_zero())
+        .collect();
+    FaceNormals {
+        weight: vec![1.0; normal.len()],
+        normal,
+    }
+}
+
+/// One channel of an RGB image (`Some(0..3)`) or the mean of the three (`None`), linear
+/// (sRGB-decoded when `srgb`).
+pub fn linear_radiance(rgb: &[f32], srgb: bool, channel: Option<usize>) -> Vec<f32> {
+    let lin = |x: f32| if srgb { srgb_to_linear(x) } else { x };
+    rgb.chunks_exact(3)
+        .map(|c| match channel {
+            Some(k) => lin(c[k]),
+            None => (lin(c[0]) + lin(c[1]) + lin(c[2])) / 3.0,
+        })
+        .collect()
+}
+
+/// One view for [`refine_by_shading`].
+#[derive(Clone, Copy, Debug)]
+pub struct ShadingImage<'a> {
+    /// The camera; the light sits at its centre.
+    pub camera: &'a Camera,
+    /// Linear radiance per pixel, row-major ([`linear_radiance`]).
+    pub radiance: &'a [f32],
+    /// Object mask per pixel (`None`: every pixel counts).
+    pub mask: Option<&'a [f32]>,
+}
+
+/// Settings of [`refine_by_shading`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ShadingRefinement {
+    /// How the normals are solved (the interreflection is modelled when
+    /// `ShadingSettings::interreflection` is set).
+    pub shading: ShadingSettings,
+    /// The length over which the displacements return to zero where the shading says nothing
+    /// (scene units; [`RefineSettings::anchor`]).
+    pub anchor: f32,
+    /// The farthest a vertex may move outward (scene units).
+    pub max_outward: f32,
+    /// Rays cast per face for the surroundings the interreflection reads.
+    pub surrounding_rays: usize,
+}
+
+impl Default for ShadingRefinement {
+    fn default() -> Self {
+        ShadingRefinement {
+            shading: ShadingSettings {
+                interreflection: true,
+                ..ShadingSettings::default()
+            },
+            anchor: 0.01,
+            max_outward: 0.0,
+            surrounding_rays: 32,
+        }
+    }
+}
+
+/// What [`refine_by_shading`] returns.
+#[derive(Clone, Debug)]
+pub struct ShadingRefined {
+    /// The refined mesh (same triangles, moved vertices).
+    pub mesh: TriMesh,
+    /// Per vertex, the displacement along its normal (scene units, negative: inward).
+    pub moves: Vec<f32>,
+    /// Faces whose normal the shading solved.
+    pub solved: usize,
+    /// The interreflection constant used (0: not modelled).
+    pub interreflection: f32,
+}
+
+/// Refines `mesh` (a mesh around the object, such as the masks') by the normals its faces'
+/// shading explains in `images` ([`shading_normals`], with the light the rest of the object
+/// sends each face when `settings.shading.interreflection` is set): the vertices move along
+/// their normals so that the faces' normals follow the shading's ([`crate::refine`]), within
+/// `settings.anchor` of where they were, and, with `depth`, each face's mean displacement
+/// pulled towards an observed offset ([`crate::refine::refine`]).
+pub fn refine_by_shading(
+    mesh: &TriMesh,
+    images: &[ShadingImage<'_>],
+    depth: Option<&DepthTargets>,
+    settings: &ShadingRefinement,
+) -> Result<ShadingRefined> {
+    let valid = settings.anchor.is_finite()
+        && settings.anchor > 0.0
+        && settings.max_outward.is_finite()
+        && settings.max_outward >= 0.0
+        && settings.surrounding_rays > 0;
+    if !valid {
+        return Err(EvalError::InvalidArgument(format!(
+            "shading refinement: the anchor must be positive, the outward bound non-negative \
+             and at least one surrounding ray cast (got {}, {}, {})",
+            settings.anchor, settings.max_outward, settings.surrounding_rays
+        )));
+    }
+    let caster = crate::MeshRaycaster::new(mesh, "the mesh to refine")?;
+    let depths: Vec<Vec<f32>> = images
+        .iter()
+        .map(|v| caster.render(v.camera).depth)
+        .collect();
+    let views: Vec<ShadingView<'_>> = images
+        .iter()
+        .zip(&depths)
+        .map(|(v, d)| ShadingView {
+            camera: v.camera,
+            radiance: v.radiance,
+            mask: v.mask,
+            mesh_depth: d,
+        })
+        .collect();
+    let around = if settings.shading.interreflection {
+        Some(surroundings(mesh, settings.surrounding_rays)?)
+    } else {
+        None
+    };
+    let fit = shading_normals(mesh, &views, around.as_ref(), &settings.shading)?;
+    let refine_settings = RefineSettings {
+        anchor: settings.anchor,
+        max_outward: settings.max_outward,
+        ..RefineSettings::default()
+    };
+    let (refined, moves) = refine(mesh, &fit.normals, depth, &refine_settings)?;
+    Ok(ShadingRefined {
+        mesh: refined,
+        moves,
+        solved: fit.normals.weight.iter().filter(|w| **w > 0.0).count(),
+        interreflection: fit.interreflection,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The views of rendered radiance and depth maps, without masks.
+    fn unmasked_views<'a>(
+        cams: &'a [Camera],
+        rads: &'a [Vec<f32>],
+        depths: &'a [Vec<f32>],
+    ) -> Vec<ShadingView<'a>> {
+        cams.iter()
+            .zip(rads)
+            .zip(depths)
+            .map(|((c, r), d)| ShadingView {
+                camera: c,
+                radiance: r,
+                mask: None,
+                mesh_depth: d,
+            })
+            .collect()
+    }
+
+    /// A flat square facing +z (two faces).
+    fn square() -> TriMesh {
+        TriMesh {
+            positions: vec![
+                Vec3::new(-0.1, -0.1, 0.0),
+                Vec3::new(0.1, -0.1, 0.0),
+                Vec3::new(0.1, 0.1, 0.0),
+                Vec3::new(-0.1, 0.1, 0.0),
+            ],
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+        }
+    }
+
+    /// Renders the square as a surface of normal `truth` and albedo 0.7 whose radiance under
+    /// the light at the camera is `0.7 g(n . w) / r^2`, solves its normals and returns each
+    /// face's angle to `truth` (degrees).
+    fn solve(
+        cams: &[Camera],
+        truth: Vec3,
+        g: impl Fn(f32) -> f32,
+        settings: &ShadingSettings,
+    ) -> Vec<f32> {
+        let mesh = square();
+        let (w, h) = (64usize, 64usize);
+        let mut rads = Vec::new();
+        let mut depths = Vec::new();
+        for c in cams {
+            let eye = c.centre();
+            let mut rad = vec![0.0f32; w * h];
+            let mut dep = vec![0.0f32; w * h];
+            for j in 0..h {
+                for i in 0..w {
+                    let (o, d) = c.pixel_ray(i as u32, j as u32);
+                    let t = -o.z / d.z;
+                    let x = o + d * t;
+                    if t > 0.0 && x.x.abs() < 0.1 && x.y.abs() < 0.1 {
+                        let to = eye - x;
+                        let r2 = to.length_squared();
+                        rad[j * w + i] = 0.7 * g(truth.dot(to / r2.sqrt()).max(0.0)) / r2;
+                        dep[j * w + i] = c.world_to_camera.transform_point3(x).z;
+                    }
+                }
+            }
+            rads.push(rad);
+            depths.push(dep);
+        }
+        let views = unmasked_views(cams, &rads, &depths);
+        let got = shading_normals(&mesh, &views, None, settings)
+            .unwrap()
+            .normals;
+        (0..2)
+            .map(|f| {
+                assert_eq!(got.weight[f], 1.0);
+                got.normal[f]
+                    .dot(truth)
+                    .clamp(-1.0, 1.0)
+                    .acos()
+                    .to_degrees()
+            })
+            .collect()
+    }
+
+    /// A flat square facing +z, seen by cameras around it, shaded by the Lambertian law with
+    /// a tilted normal: the solve recovers the tilt.
+    #[test]
+    fn recovers_a_tilted_lambertian_normal_from_views_with_the_light_at_the_camera() {
+        let truth = Vec3::new(0.3, -0.2, 1.0).normalize();
+        let cams: Vec<Camera> = (0..12)
+            .map(|k| {
+                let a = k as f32 * std::f32::consts::TAU / 12.0;
+                let eye = Vec3::new(1.5 * a.cos(), 1.5 * a.sin(), 3.0) * (1.0 + 0.05 * k as f32);
+                Camera::look_at(eye, Vec3::ZERO, Vec3::Y, 0.3, 64, 64)
+            })
+            .collect();
+        let settings = ShadingSettings {
+            ridge: 1e-4,
+            ..ShadingSettings::default()
+        };
+        for (f, angle) in solve(&cams, truth, |c| c, &settings).iter().enumerate() {
+            assert!(*angle < 0.5, "face {f}: {angle} degrees off");
+        }
+    }
+
+    /// A surface whose shading is flatter than Lambert's cosine (wrap lighting), seen only
+    /// from one side: Lambert's fit leans towards the eyes, the fitted response does not.
+    #[test]
+    fn a_fitted_response_removes_the_lean_of_a_flatter_shading() {
+        let truth = Vec3::Z;
+        let cams: Vec<Camera> = (0..24)
+            .map(|k| {
+                let polar = (5.0 + 3.0 * k as f32).to_radians();
+                let azimuth = (k as f32 * 7.0).to_radians();
+                let dir = Vec3::new(
+                    polar.sin() * azimuth.cos(),
+                    polar.sin() * azimuth.sin(),
+                    polar.cos(),
+                );
+                Camera::look_at(3.0 * dir, Vec3::ZERO, Vec3::Y, 0.3, 64, 64)
+            })
+            .collect();
+        let wrap = |c: f32| (c + 0.5) / 1.5;
+        let lambert = ShadingSettings {
+            ridge: 1e-4,
+            min_views: 6,
+            ..ShadingSettings::default()
+        };
+        let leaning = solve(&cams, truth, wrap, &lambert);
+        assert!(
+            leaning.iter().all(|a| *a > 2.0),
+            "Lambert's fit: {leaning:?}"
+        );
+        let fitted = solve(
+            &cams,
+            truth,
+            wrap,
+            &ShadingSettings {
+                response: 4,
+                ..lambert
+            },
+        );
+        assert!(
+            fitted.iter().all(|a| *a < 0.5),
+            "fitted response: {fitted:?}"
+        );
+    }
+
+    /// A floor beside a lit wall, each lit by the other (one bounce): the wall's light adds
+    /// to the floor's shading in the views that light it, and Lambert's fit leans; with the
+    /// interreflected light modelled, at the scene's constant (`1 / pi` for these renders) or
+    /// at the one calibrated on the images, the floor's normal is recovered.
+    #[test]
+    fn modelling_the_light_of_a_facing_wall_removes_its_lean() {
+        let mesh = TriMesh {
+            positions: vec![
+                Vec3::new(-0.1, -0.1, 0.0),
+                Vec3::new(0.1, -0.1, 0.0),
+                Vec3::new(0.1, 0.1, 0.0),
+                Vec3::new(-0.1, 0.1, 0.0),
+                Vec3::new(0.1, -0.1, 0.2),
+                Vec3::new(0.1, 0.1, 0.2),
+            ],
+            // The floor (+z) and the wall at x = 0.1 facing -x.
+            triangles: vec![[0, 1, 2], [0, 2, 3], [1, 5, 2], [1, 4, 5]],
+        };
+        let (rho_floor, rho_wall) = (0.6f32, 0.9f32);
+        let wall_n = Vec3::NEG_X;
+        let cams: Vec<Camera> = (0..24)
+            .map(|k| {
+                let polar = (20.0 + 40.0 * (k % 6) as f32 / 5.0).to_radians();
+                let azimuth = (120.0 + 120.0 * (k / 6) as f32 / 3.0).to_radians();
+                let dir = Vec3::new(
+                    polar.sin() * azimuth.cos(),
+                    polar.sin() * azimuth.sin(),
+                    polar.cos(),
+                );
+                Camera::look_at(3.0 * dir, Vec3::new(0.0, 0.0, 0.05), Vec3::Z, 0.2, 64, 64)
+            })
+            .collect();
+        let caster = crate::MeshRaycaster::new(&mesh, "test scene").unwrap();
+        // The wall on a 20 x 20 grid of cells for the floor's irradiance.
+        let cells: Vec<Vec3> = (0..400)
+            .map(|k| {
+                let (a, b) = ((k % 20) as f32 + 0.5, (k / 20) as f32 + 0.5);
+                Vec3::new(0.1, -0.1 + 0.01 * a, 0.01 * b)
+            })
+            .collect();
+        let floor: Vec<Vec3> = (0..400)
+            .map(|k| {
+                let (a, b) = ((k % 20) as f32 + 0.5, (k / 20) as f32 + 0.5);
+                Vec3::new(-0.1 + 0.01 * a, -0.1 + 0.01 * b, 0.0)
+            })
+            .collect();
+        let (mut rads, mut depths) = (Vec::new(), Vec::new());
+        for c in &cams {
+            let eye = c.centre();
+            let lit = |y: Vec3, n: Vec3, rho: f32| {
+                let to = eye - y;
+                let r2 = to.length_squared();
+                rho * n.dot(to / r2.sqrt()).max(0.0) / r2
+            };
+            let mut rad = vec![0.0f32; 64 * 64];
+            let mut dep = vec![0.0f32; 64 * 64];
+            for j in 0..64u32 {
+                for i in 0..64u32 {
+                    let (o, d) = c.pixel_ray(i, j);
+                    let Some((t, n)) = caster.first_hit(o, d) else {
+                        continue;
+                    };
+                    let x = o + t * d;
+                    let p = (j * 64 + i) as usize;
+                    dep[p] = c.world_to_camera.transform_point3(x).z;
+                    // The irradiance at `x` (normal `nx`) from the lit cells of the other
+                    // plane (normal `ny`, albedo `rho`, 1e-4 each).
+                    let irradiance = |nx: Vec3, cells: &[Vec3], ny: Vec3, rho: f32| -> f32 {
+                        cells
+                            .iter()
+                            .map(|y| {
+                                let to = *y - x;
+                                let d2 = to.length_squared();
+                                let u = to / d2.sqrt();
+                                lit(*y, ny, rho) * nx.dot(u).max(0.0) * (-ny.dot(u)).max(0.0) * 1e-4
+                                    / d2
+                            })
+                            .sum()
+                    };
+                    let pi = std::f32::consts::PI;
+                    rad[p] = if n.z > 0.9 {
+                        let e = irradiance(Vec3::Z, &cells, wall_n, rho_wall);
+                        lit(x, Vec3::Z, rho_floor) + rho_floor / pi * e
+                    } else {
+                        let e = irradiance(wall_n, &floor, Vec3::Z, rho_floor);
+                        lit(x, wall_n, rho_wall) + rho_wall / pi * e
+                    };
+                }
+            }
+            rads.push(rad);
+            depths.push(dep);
+        }
+        let views = unmasked_views(&cams, &rads, &depths);
+        let around = surroundings(&mesh, 256).unwrap();
+        let floor_error = |settings: &ShadingSettings| -> (Vec<f32>, f32) {
+            let fit = shading_normals(&mesh, &views, Some(&around), settings).unwrap();
+            let angles = (0..2)
+                .map(|f| {
+                    assert_eq!(fit.normals.weight[f], 1.0);
+                    fit.normals.normal[f]
+                        .dot(Vec3::Z)
+                        .clamp(-1.0, 1.0)
+                        .acos()
+                        .to_degrees()
+                })
+                .collect();
+            (angles, fit.interreflection)
+        };
+        let lambert = ShadingSettings {
+            ridge: 1e-4,
+            ..ShadingSettings::default()
+        };
+        let (leaning, _) = floor_error(&lambert);
+        let (modelled, _) = floor_error(&ShadingSettings {
+            interreflection: true,
+            interreflection_c: Some(std::f32::consts::FRAC_1_PI),
+            ..lambert
+        });
+        let (calibrated, c) = floor_error(&ShadingSettings {
+            interreflection: true,
+            ..lambert
+        });
+        assert!(
+            leaning.iter().all(|a| *a > 2.0),
+            "Lambert's fit: {leaning:?}"
+        );
+        assert!(modelled.iter().all(|a| *a < 0.5), "modelled: {modelled:?}");
+        assert!(
+            calibrated.iter().all(|a| *a < 0.5),
+            "calibrated: {calibrated:?}"
+        );
+        assert!(
+            (c * std::f32::consts::PI - 1.0).abs() < 0.2,
+            "calibrated c = {c}, the renders' 1 / pi = {}",
+            std::f32::consts::FRAC_1_PI
+        );
+    }
+
+    /// A flat grid over `[-0.2, 0.2]^2` with `n` cells a side, at height `z(x, y)`.
+    fn height_grid(n: usize, z: impl Fn(f32, f32) -> f32) -> TriMesh {
+        let mut mesh = TriMesh {
+            positions: Vec::new(),
+            triangles: Vec::new(),
+        };
+        for j in 0..=n {
+            for i in 0..=n {
+                let (x, y) = (
+                    -0.2 + 0.4 * i as f32 / n as f32,
+                    -0.2 + 0.4 * j as f32 / n as f32,
+                );
+                mesh.positions.push(Vec3::new(x, y, z(x, y)));
+            }
+        }
+        let at = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+        for j in 0..n {
+            for i in 0..n {
+                mesh.triangles
+                    .push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
+                mesh.triangles
+                    .push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
+            }
+        }
+        mesh
+    }
+
+    /// A bowl the silhouettes cannot see, under a lid: the lid refined by the shading of the
+    /// bowl (Lambertian, the light at each camera) sinks to the bowl's depth in the middle and
+    /// stays where the surface is flat.
+    #[test]
+    fn the_shading_of_a_hidden_bowl_sinks_the_lid_over_it() {
+        let (depth, radius) = (0.02f32, 0.12f32);
+        let bowl = |x: f32, y: f32| -depth * (1.0 - (x * x + y * y) / (radius * radius)).max(0.0);
+        let truth = height_grid(48, bowl);
+        let lid = height_grid(24, |_, _| 0.0);
+        let cams: Vec<Camera> = (0..24)
+            .map(|k| {
+                let polar = (10.0 + 40.0 * (k % 4) as f32 / 3.0).to_radians();
+                let azimuth = (k as f32 * 15.0 + 7.0).to_radians();
+                let dir = Vec3::new(
+                    polar.sin() * azimuth.cos(),
+                    polar.sin() * azimuth.sin(),
+                    polar.cos(),
+                );
+                Camera::look_at(1.5 * dir, Vec3::ZERO, Vec3::Z, 0.35, 96, 96)
+            })
+            .collect();
+        let caster = crate::MeshRaycaster::new(&truth, "the bowl").unwrap();
+        let rads: Vec<Vec<f32>> = cams
+            .iter()
+            .map(|c| {
+                let eye = c.centre();
+                (0..96 * 96u32)
+                    .map(|p| {
+                        let (o, d) = c.pixel_ray(p % 96, p / 96);
+                        caster.first_hit(o, d).map_or(0.0, |(t, n)| {
+                            let to = eye - (o + t * d);
+                            let r2 = to.length_squared();
+                            0.7 * n.dot(to / r2.sqrt()).max(0.0) / r2
+                        })
+                    })
+                    .collect()
+            })
+            .collect();
+        let images: Vec<ShadingImage<'_>> = cams
+            .iter()
+            .zip(&rads)
+            .map(|(camera, radiance)| ShadingImage {
+                camera,
+                radiance,
+                mask: None,
+            })
+            .collect();
+        let settings = ShadingRefinement {
+            anchor: 0.5,
+            ..ShadingRefinement::default()
+        };
+        let refined = refine_by_shading(&lid, &images, None, &settings).unwrap();
+        assert!(
+            refined.solved > lid.triangles.len() / 2,
+            "{}",
+            refined.solved
+        );
+        for (v, d) in lid.positions.iter().zip(&refined.moves) {
+            let want = bowl(v.x, v.y);
+            let r = v.truncate().length();
+            if r < 0.2 * radius {
+                assert!(*d < 0.7 * want, "centre {v}: moved {d}, the bowl at {want}");
+            }
+            if r > 1.3 * radius && v.x.abs() < 0.18 && v.y.abs() < 0.18 {
+                assert!(d.abs() < 0.2 * depth, "flat {v}: moved {d}");
+            }
+        }
+        // Inward only, up to the default's zero outward bound.
+        assert!(refined.moves.iter().all(|d| *d <= 0.0));
+    }
+}
