@@ -258,6 +258,36 @@ pub fn is_closed(mesh: &TriMesh) -> bool {
             .all(|(&(a, b), &n)| n == 1 && directed.get(&(b, a)) == Some(&1))
 }
 
+/// A height field over the rectangle `[lo, hi]` of the xy plane: `n` cells a side, two
+/// triangles per cell, vertex `(x, y, z(x, y))`, faces up (+z) where it is flat.
+pub fn height_grid(
+    n: usize,
+    lo: glam::Vec2,
+    hi: glam::Vec2,
+    z: impl Fn(f32, f32) -> f32,
+) -> TriMesh {
+    let mut positions = Vec::with_capacity((n + 1) * (n + 1));
+    for j in 0..=n {
+        for i in 0..=n {
+            let x = lo.x + (hi.x - lo.x) * i as f32 / n as f32;
+            let y = lo.y + (hi.y - lo.y) * j as f32 / n as f32;
+            positions.push(Vec3::new(x, y, z(x, y)));
+        }
+    }
+    let at = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+    let mut triangles = Vec::with_capacity(2 * n * n);
+    for j in 0..n {
+        for i in 0..n {
+            triangles.push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
+            triangles.push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
+        }
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
+
 /// An icosphere: a regular icosahedron subdivided `subdivisions` times with vertices pushed
 /// onto the sphere (`20 * 4^subdivisions` triangles), outward oriented. Vertices lie on the
 /// sphere, so the faces lie slightly inside it.

@@ -601,28 +601,7 @@ mod tests {
 
     /// A flat grid `z = 0` over `[-1, 1]^2` with `n` cells a side, normals up.
     fn grid(n: usize) -> TriMesh {
-        let mut positions = Vec::new();
-        for j in 0..=n {
-            for i in 0..=n {
-                positions.push(Vec3::new(
-                    -1.0 + 2.0 * i as f32 / n as f32,
-                    -1.0 + 2.0 * j as f32 / n as f32,
-                    0.0,
-                ));
-            }
-        }
-        let mut triangles = Vec::new();
-        let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
-        for j in 0..n {
-            for i in 0..n {
-                triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-                triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
-            }
-        }
-        TriMesh {
-            positions,
-            triangles,
-        }
+        crate::mesh::height_grid(n, glam::Vec2::splat(-1.0), glam::Vec2::ONE, |_, _| 0.0)
     }
 
     /// The normals of the bowl `z = -0.1 (1 - r^2)` inside `r < 1`, flat outside, per face

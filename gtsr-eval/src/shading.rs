@@ -287,8 +287,13 @@ impl Surroundings {
 
 /// Casts `rays` cosine-weighted rays over each face's outer hemisphere from its centroid.
 pub fn surroundings(mesh: &TriMesh, rays: usize) -> Result<Surroundings> {
-    use rayon::prelude::*;
     let caster = crate::MeshRaycaster::new(mesh, "the mesh")?;
+    Ok(surroundings_cast(mesh, &caster, rays))
+}
+
+/// [`surroundings`] with the mesh's ray caster already built.
+fn surroundings_cast(mesh: &TriMesh, caster: &crate::MeshRaycaster, rays: usize) -> Surroundings {
+    use rayon::prelude::*;
     let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
     let hits: Vec<Vec<Vec3>> = mesh
         .triangles
@@ -319,11 +324,11 @@ pub fn surroundings(mesh: &TriMesh, rays: usize) -> Result<Surroundings> {
     for h in &hits {
         start.push(start.last().copied().unwrap_or(0) + h.len());
     }
-    Ok(Surroundings {
+    Surroundings {
         rays,
         start,
         points: hits.into_iter().flatten().collect(),
-    })
+    }
 }
 
 /// Per face of `mesh`, the normal that the shading of the views explains best (module
@@ -695,11 +700,10 @@ pub fn refine_by_shading(
             mesh_depth: d,
         })
         .collect();
-    let around = if settings.shading.interreflection {
-        Some(surroundings(mesh, settings.surrounding_rays)?)
-    } else {
-        None
-    };
+    let around = settings
+        .shading
+        .interreflection
+        .then(|| surroundings_cast(mesh, &caster, settings.surrounding_rays));
     let fit = shading_normals(mesh, &views, around.as_ref(), &settings.shading)?;
     let refine_settings = RefineSettings {
         anchor: settings.anchor,
@@ -827,13 +831,7 @@ mod tests {
         let truth = Vec3::Z;
         let cams: Vec<Camera> = (0..24)
             .map(|k| {
-                let polar = (5.0 + 3.0 * k as f32).to_radians();
-                let azimuth = (k as f32 * 7.0).to_radians();
-                let dir = Vec3::new(
-                    polar.sin() * azimuth.cos(),
-                    polar.sin() * azimuth.sin(),
-                    polar.cos(),
-                );
+                let dir = direction(5.0 + 3.0 * k as f32, k as f32 * 7.0);
                 Camera::look_at(3.0 * dir, Vec3::ZERO, Vec3::Y, 0.3, 64, 64)
             })
             .collect();
@@ -885,12 +883,9 @@ mod tests {
         let wall_n = Vec3::NEG_X;
         let cams: Vec<Camera> = (0..24)
             .map(|k| {
-                let polar = (20.0 + 40.0 * (k % 6) as f32 / 5.0).to_radians();
-                let azimuth = (120.0 + 120.0 * (k / 6) as f32 / 3.0).to_radians();
-                let dir = Vec3::new(
-                    polar.sin() * azimuth.cos(),
-                    polar.sin() * azimuth.sin(),
-                    polar.cos(),
+                let dir = direction(
+                    20.0 + 40.0 * (k % 6) as f32 / 5.0,
+                    120.0 + 120.0 * (k / 6) as f32 / 3.0,
                 );
                 Camera::look_at(3.0 * dir, Vec3::new(0.0, 0.0, 0.05), Vec3::Z, 0.2, 64, 64)
             })
@@ -1001,31 +996,15 @@ mod tests {
         );
     }
 
-    /// A flat grid over `[-0.2, 0.2]^2` with `n` cells a side, at height `z(x, y)`.
+    /// A grid over `[-0.2, 0.2]^2` with `n` cells a side, at height `z(x, y)`.
     fn height_grid(n: usize, z: impl Fn(f32, f32) -> f32) -> TriMesh {
-        let mut mesh = TriMesh {
-            positions: Vec::new(),
-            triangles: Vec::new(),
-        };
-        for j in 0..=n {
-            for i in 0..=n {
-                let (x, y) = (
-                    -0.2 + 0.4 * i as f32 / n as f32,
-                    -0.2 + 0.4 * j as f32 / n as f32,
-                );
-                mesh.positions.push(Vec3::new(x, y, z(x, y)));
-            }
-        }
-        let at = |i: usize, j: usize| (j * (n + 1) + i) as u32;
-        for j in 0..n {
-            for i in 0..n {
-                mesh.triangles
-                    .push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
-                mesh.triangles
-                    .push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
-            }
-        }
-        mesh
+        crate::mesh::height_grid(n, glam::Vec2::splat(-0.2), glam::Vec2::splat(0.2), z)
+    }
+
+    /// The unit direction at `polar` from +z and `azimuth` about it (degrees).
+    fn direction(polar: f32, azimuth: f32) -> Vec3 {
+        let (p, a) = (polar.to_radians(), azimuth.to_radians());
+        Vec3::new(p.sin() * a.cos(), p.sin() * a.sin(), p.cos())
     }
 
     /// A bowl the silhouettes cannot see, under a lid: the lid refined by the shading of the
@@ -1039,13 +1018,7 @@ mod tests {
         let lid = height_grid(24, |_, _| 0.0);
         let cams: Vec<Camera> = (0..24)
             .map(|k| {
-                let polar = (10.0 + 40.0 * (k % 4) as f32 / 3.0).to_radians();
-                let azimuth = (k as f32 * 15.0 + 7.0).to_radians();
-                let dir = Vec3::new(
-                    polar.sin() * azimuth.cos(),
-                    polar.sin() * azimuth.sin(),
-                    polar.cos(),
-                );
+                let dir = direction(10.0 + 40.0 * (k % 4) as f32 / 3.0, k as f32 * 15.0 + 7.0);
                 Camera::look_at(1.5 * dir, Vec3::ZERO, Vec3::Z, 0.35, 96, 96)
             })
             .collect();

@@ -325,15 +325,12 @@ fn native_masks(
                 .with_context(|| format!("view {} has no mask", v.name))
         })
         .collect::<Result<Vec<_>>>()?;
-    let masks = match gtsr_eval::MasksAlone::new(views)? {
-        Some(m) => match radiance {
-            Some(r) => Some(
-                m.with_radiance(r)
-                    .with_context(|| format!("the images of {}", data_dir.display()))?,
-            ),
-            None => Some(m),
-        },
-        None => None,
+    let masks = match (gtsr_eval::MasksAlone::new(views)?, radiance) {
+        (Some(m), Some(r)) => Some(
+            m.with_radiance(r)
+                .with_context(|| format!("the images of {}", data_dir.display()))?,
+        ),
+        (m, _) => m,
     };
     if let Some(m) = &masks {
         println!(

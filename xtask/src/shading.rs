@@ -706,25 +706,8 @@ mod tests {
     #[test]
     fn the_low_pass_removes_a_long_range_tilt_and_keeps_the_detail() {
         let n = 20usize;
-        let mut mesh = TriMesh {
-            positions: Vec::new(),
-            triangles: Vec::new(),
-        };
-        for j in 0..=n {
-            for i in 0..=n {
-                mesh.positions
-                    .push(Vec3::new(i as f32 * 0.01, j as f32 * 0.01, 0.0));
-            }
-        }
-        let at = |i: usize, j: usize| (j * (n + 1) + i) as u32;
-        for j in 0..n {
-            for i in 0..n {
-                mesh.triangles
-                    .push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
-                mesh.triangles
-                    .push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
-            }
-        }
+        let mesh =
+            gtsr_eval::mesh::height_grid(n, glam::Vec2::ZERO, glam::Vec2::splat(0.2), |_, _| 0.0);
         let own = own_normals(&mesh);
         let tilt = glam::Quat::from_rotation_x(5f32.to_radians());
         let mut shading = FaceNormals {
