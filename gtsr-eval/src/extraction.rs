@@ -23,7 +23,7 @@ use crate::mesh::face_centroid;
 use crate::mesh::largest_component;
 use crate::metrics::SignedDistance;
 use crate::refine::{debiased_depth_targets, observed_offsets};
-use crate::shading::{ShadingImage, ShadingRefinement, refine_by_shading};
+use crate::shading::{ShadingImage, ShadingRefinement, ShadingSettings, refine_by_shading};
 use crate::tsdf::{
     TsdfVolume, default_truncation, default_voxel_for_radius, drop_depth_edges, faces_ray,
     median_pixel_footprint, snap_to_hull,
@@ -84,6 +84,8 @@ pub const DEFAULT_CONCAVITY_GATE: f32 = 3.0;
 pub const DEFAULT_CULL_UNOBSERVED: f32 = 3.0;
 /// How far the shading refinement may move a vertex outward, in the masks' footprints.
 const SHADING_MAX_OUTWARD: f32 = 0.25;
+/// The default of [`MeshConfig::shading_anchor`], footprints.
+pub const DEFAULT_SHADING_ANCHOR: f32 = 0.5;
 /// The default of [`MeshConfig::shading_depth_threshold`], footprints.
 pub const DEFAULT_SHADING_DEPTH_THRESHOLD: f32 = 0.25;
 /// [`MeshConfig::shading_depth`]: the depth's offsets count on faces at least this many views
@@ -139,12 +141,12 @@ pub struct MeshConfig {
     pub cull_unobserved: f32,
     /// Carving: then refine the mesh by the normals the training images' shading explains
     /// under a light at the camera (the paper's capture), with the light the object sends
-    /// itself modelled; each vertex moves along its normal, held to where it was over this many
-    /// of the masks' pixel footprints (0: off; 1 was measured). It needs clean, well resolved
-    /// shading: on noisy or low-resolution images it roughens the mesh. The final mesh only,
-    /// not the evaluations during training.
+    /// itself modelled and each normal shrunk towards the mesh's own by its uncertainty; each
+    /// vertex moves along its normal, held to where it was over this many of the masks' pixel
+    /// footprints (0: off). Only where the light is at the camera (the PBR component's
+    /// decision); the final mesh only, not the evaluations during training.
     #[arg(long = "shading-anchor", id = "mesh.shading_anchor", value_name = "FOOTPRINTS",
-          default_value_t = 0.0, value_parser = parse_non_negative)]
+          default_value_t = DEFAULT_SHADING_ANCHOR, value_parser = parse_non_negative)]
     pub shading_anchor: f32,
     /// Carving, with the shading refinement: also pull each face towards where the rendered
     /// depth maps see the surface (per face the median offset over the views, less the median
@@ -156,6 +158,11 @@ pub struct MeshConfig {
     /// many footprints; the faces within it are asked to stay.
     #[arg(skip = DEFAULT_SHADING_DEPTH_THRESHOLD)]
     pub shading_depth_threshold: f32,
+    /// Carving, with the shading refinement: shrink each face's shading normal towards its
+    /// own by its uncertainty ([`crate::shading::ShadingSettings::shrink`]; false: the plain
+    /// least-squares normals).
+    #[arg(skip = true)]
+    pub shading_shrink: bool,
     /// Carving: the grid spacing (scene units). Default: 0.75 of the masks' pixel footprint
     /// at the object, at the dataset's resolution.
     #[arg(long = "carve-voxel", id = "mesh.carve_voxel", value_name = "SIZE", value_parser = parse_positive)]
@@ -216,9 +223,10 @@ impl Default for MeshConfig {
             carve_concavity_gate: DEFAULT_CONCAVITY_GATE,
             carve_gate_radius: CarveSettings::default().gate_radius,
             cull_unobserved: DEFAULT_CULL_UNOBSERVED,
-            shading_anchor: 0.0,
+            shading_anchor: DEFAULT_SHADING_ANCHOR,
             shading_depth: 0.0,
             shading_depth_threshold: DEFAULT_SHADING_DEPTH_THRESHOLD,
+            shading_shrink: true,
             carve_voxel: None,
             voxel: None,
             truncation: None,
@@ -601,6 +609,7 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
                 radiance,
                 depth,
                 config.shading_anchor,
+                config.shading_shrink,
                 &mut notes,
             )?;
         }
@@ -699,6 +708,7 @@ fn shading_refined(
     radiance: &[Vec<f32>],
     depth: Option<DepthFrom<'_>>,
     anchor: f32,
+    shrink: bool,
     notes: &mut Vec<String>,
 ) -> Result<TriMesh> {
     let t0 = std::time::Instant::now();
@@ -715,10 +725,15 @@ fn shading_refined(
             mask: Some(mask),
         })
         .collect();
+    let defaults = ShadingRefinement::default();
     let settings = ShadingRefinement {
         anchor: anchor * footprint,
         max_outward: SHADING_MAX_OUTWARD * footprint,
-        ..ShadingRefinement::default()
+        shading: ShadingSettings {
+            shrink,
+            ..defaults.shading
+        },
+        ..defaults
     };
     let targets = match depth {
         Some(d) => {
@@ -768,10 +783,11 @@ fn shading_refined(
     let moved = refined.moves.iter().map(|d| f64::from(*d)).sum::<f64>()
         / refined.moves.len().max(1) as f64;
     notes.push(format!(
-        "shading refinement: normals solved on {} of {} faces, interreflection constant {:.4}, \
-         anchor {:.4}, mean move {:+.5} ({:.1} s)",
+        "shading refinement: normals solved on {} of {} faces (mean share kept {:.3}), \
+         interreflection constant {:.4}, anchor {:.4}, mean move {:+.5} ({:.1} s)",
         refined.solved,
         mesh.triangles.len(),
+        refined.confidence,
         refined.interreflection,
         settings.anchor,
         moved,

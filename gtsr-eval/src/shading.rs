@@ -69,6 +69,13 @@ pub struct ShadingSettings {
     pub interreflection: bool,
     /// With `interreflection`: this constant `c` instead of the calibrated one.
     pub interreflection_c: Option<f32>,
+    /// Shrink each face's normal towards its own by how far the readings' scatter leaves it
+    /// uncertain (empirical Bayes): the weight of a face's correction is `s^2 / (s^2 + v)`,
+    /// with `v` the variance of its solved normal's angle (the fit's residual variance
+    /// through the normal equations) and `s^2` the spread of the true corrections over the
+    /// mesh (the mean squared correction less the mean `v`). Noisy or poorly resolved shading
+    /// then leaves the mesh as it was. Lambertian fits only (`response` < 2).
+    pub shrink: bool,
 }
 
 impl Default for ShadingSettings {
@@ -82,6 +89,7 @@ impl Default for ShadingSettings {
             response: 0,
             interreflection: false,
             interreflection_c: None,
+            shrink: false,
         }
     }
 }
@@ -98,6 +106,9 @@ pub struct ShadingFit {
     pub response: Vec<f32>,
     /// The interreflection constant `c` used (`ShadingSettings::interreflection`; 0 off).
     pub interreflection: f32,
+    /// Per solved face, the share of its correction kept by `ShadingSettings::shrink` (1
+    /// without it; 0 where not solved).
+    pub confidence: Vec<f32>,
 }
 
 /// A piecewise-linear function of the cosine on `knots` evenly spaced points of
@@ -451,8 +462,9 @@ pub fn shading_normals(
     }
     drop(next);
     // The linear fit of one face with the interreflected part `c |b| E r^2` taken off at the
-    // `|b|` given.
-    let solve = |f: usize, c: f32, b_prev: f32| -> Option<Vec3> {
+    // `|b|` given, and the variance of the angle of its direction (the residual variance
+    // through the inverse normal matrix, on the plane across `b`).
+    let solve = |f: usize, c: f32, b_prev: f32| -> Option<(Vec3, f32)> {
         let s = &samples[start[f]..start[f + 1]];
         if s.len() < settings.min_views.max(3) {
             return None;
@@ -475,28 +487,44 @@ pub fn shading_normals(
         }
         let albedo = cy / c2;
         let lambda = settings.ridge * (ata.x_axis.x + ata.y_axis.y + ata.z_axis.z) / 3.0;
-        if settings.ambient {
+        let params = if settings.ambient { 4 } else { 3 };
+        let (b, a, inv) = if settings.ambient {
             // The constant gets a ridge towards 0 as well.
             let m = ata + Mat4::from_diagonal(Vec4::splat(lambda));
             if m.determinant().abs() <= f32::EPSILON * lambda.powi(4).max(f32::MIN_POSITIVE) {
                 return None;
             }
-            Some((m.inverse() * (atb + lambda * albedo * n0.extend(0.0))).truncate())
+            let inv = m.inverse();
+            let x = inv * (atb + lambda * albedo * n0.extend(0.0));
+            (x.truncate(), x.w, Mat3::from_mat4(inv))
         } else {
             let m = Mat3::from_mat4(ata) + Mat3::from_diagonal(Vec3::splat(lambda));
             if m.determinant().abs() <= f32::EPSILON * lambda.powi(3).max(f32::MIN_POSITIVE) {
                 return None;
             }
-            Some(m.inverse() * (atb.truncate() + lambda * albedo * n0))
-        }
+            let inv = m.inverse();
+            (inv * (atb.truncate() + lambda * albedo * n0), 0.0, inv)
+        };
+        let var = if settings.shrink && s.len() > params {
+            let rss: f32 = (s.iter())
+                .map(|x| (x.y - c * b_prev * x.e - x.w.dot(b) - a).powi(2))
+                .sum();
+            let sigma2 = rss / (s.len() - params) as f32;
+            let (e1, e2) = b.normalize_or_zero().any_orthonormal_pair();
+            sigma2 * (e1.dot(inv * e1) + e2.dot(inv * e2))
+                / b.length_squared().max(f32::MIN_POSITIVE)
+        } else {
+            0.0
+        };
+        Some((b, var))
     };
-    let lambert: Vec<Option<Vec3>> = (0..nf).map(|f| solve(f, 0.0, 0.0)).collect();
+    let lambert: Vec<Option<(Vec3, f32)>> = (0..nf).map(|f| solve(f, 0.0, 0.0)).collect();
     // The faces' fits at a given `c` (each face's `|b|` in turn).
-    let at = |c: f32| -> Vec<Option<Vec3>> {
+    let at = |c: f32| -> Vec<Option<(Vec3, f32)>> {
         let mut b = lambert.clone();
         for _ in 0..4 {
             b = (0..nf)
-                .map(|f| b[f].and_then(|bf| solve(f, c, bf.length())))
+                .map(|f| b[f].and_then(|(bf, _)| solve(f, c, bf.length())))
                 .collect();
         }
         b
@@ -510,11 +538,11 @@ pub fn shading_normals(
             // open), the normals lean neither towards nor away from the eyes that see them,
             // measured against the faces' own normals where the two agree within 10 degrees.
             let open = s.openness();
-            let lean = |b: &[Option<Vec3>]| -> f64 {
+            let lean = |b: &[Option<(Vec3, f32)>]| -> f64 {
                 let agree = 10f32.to_radians().cos();
                 let (mut sum, mut n) = (0.0f64, 0usize);
                 for f in 0..nf {
-                    let Some(bf) = b[f] else { continue };
+                    let Some((bf, _)) = b[f] else { continue };
                     let (x, o) = (bf.normalize_or_zero(), own[f]);
                     let m = eyes[f] - eyes[f].dot(o) * o;
                     if open[f] >= 0.9 || x.dot(o) < agree || m.length() < 1e-3 {
@@ -525,26 +553,49 @@ pub fn shading_normals(
                 }
                 if n == 0 { 0.0 } else { sum / n as f64 }
             };
-            let mut prev = (0.0f32, lean(&lambert));
-            let mut chosen = None;
-            for k in 1..=40 {
-                let c = 0.01 * k as f32;
-                let l = lean(&at(c));
-                if l <= 0.0 {
-                    let t = prev.1 / (prev.1 - l).max(f64::MIN_POSITIVE);
-                    chosen = Some(prev.0 + (c - prev.0) * t as f32);
-                    break;
+            // The lean falls as `c` grows: bracket its zero on a coarse scan of `(0, 1]`,
+            // narrow the bracket by bisection, interpolate within it. Without a zero, the `c`
+            // of the least lean scanned.
+            let mut lo = (0.0f32, lean(&lambert));
+            let mut best = lo;
+            let mut hi = None;
+            if lo.1 > 0.0 {
+                for k in 1..=20 {
+                    let c = 0.05 * k as f32;
+                    let l = lean(&at(c));
+                    if l <= 0.0 {
+                        hi = Some((c, l));
+                        break;
+                    }
+                    if l.abs() < best.1.abs() {
+                        best = (c, l);
+                    }
+                    lo = (c, l);
                 }
-                prev = (c, l);
             }
-            let c = chosen.unwrap_or(0.0);
+            let c = match hi {
+                Some(mut hi) => {
+                    for _ in 0..4 {
+                        let c = 0.5 * (lo.0 + hi.0);
+                        let l = lean(&at(c));
+                        if l <= 0.0 {
+                            hi = (c, l);
+                        } else {
+                            lo = (c, l);
+                        }
+                    }
+                    let t = lo.1 / (lo.1 - hi.1).max(f64::MIN_POSITIVE);
+                    lo.0 + (hi.0 - lo.0) * t as f32
+                }
+                None => best.0,
+            };
             (at(c), c)
         }
     };
     if interreflection.is_some() {
         // The readings less their interreflected part, for the response's fit.
         for f in 0..nf {
-            let m = b[f].map_or(0.0, Vec3::length);
+            let m = b[f].map_or(0.0, |(bf, _)| bf.length());
             for x in &mut samples[start[f]..start[f + 1]] {
                 x.y -= c * m * x.e;
             }
@@ -552,14 +603,30 @@ pub fn shading_normals(
     }
     let resp = (settings.response >= 2)
         .then(|| fit_response(&start, &samples, &own, settings.min_cos, settings.response));
+    // The spread of the true corrections: the mean squared correction less its mean variance.
+    let shrink = (settings.shrink && resp.is_none()).then(|| {
+        let (mut sq, mut var, mut n) = (0.0f64, 0.0f64, 0usize);
+        for f in 0..nf {
+            let Some((bf, v)) = b[f] else { continue };
+            let x = bf.normalize_or_zero();
+            if x.dot(own[f]) > 0.0 && v.is_finite() {
+                sq += f64::from((x - own[f]).length_squared());
+                var += f64::from(v);
+                n += 1;
+            }
+        }
+        ((sq - var) / n.max(1) as f64).max(0.0) as f32
+    });
     let mut out = FaceNormals {
         normal: vec![Vec3::ZERO; nf],
         weight: vec![0.0; nf],
     };
+    let mut confidence = vec![0.0f32; nf];
     for f in 0..nf {
-        let Some(bf) = b[f] else { continue };
+        let Some((bf, v)) = b[f] else { continue };
         let n0 = own[f];
         let mut n = bf.normalize_or_zero();
+        let mut k = 1.0;
         if let Some(resp) = &resp {
             let from = if n.dot(n0) > 0.0 { n } else { n0 };
             n = fit_normal(
@@ -569,14 +636,25 @@ pub fn shading_normals(
                 n0,
                 settings.ridge,
             );
+        } else if let Some(s2) = shrink {
+            k = if s2 + v > 0.0 && v.is_finite() {
+                s2 / (s2 + v)
+            } else {
+                0.0
+            };
+            if n.dot(n0) > 0.0 {
+                n = (n0 + k * (n - n0)).normalize_or_zero();
+            }
         }
         if n.dot(n0) > 0.0 && n.is_finite() {
             out.normal[f] = n;
             out.weight[f] = 1.0;
+            confidence[f] = k;
         }
     }
     Ok(ShadingFit {
         normals: out,
+        confidence,
         eyes,
         response: resp.map(|r| r.g).unwrap_or_default(),
         interreflection: c,
@@ -639,6 +717,7 @@ impl Default for ShadingRefinement {
         ShadingRefinement {
             shading: ShadingSettings {
                 interreflection: true,
+                shrink: true,
                 ..ShadingSettings::default()
             },
             anchor: 0.01,
@@ -659,6 +738,8 @@ pub struct ShadingRefined {
     pub solved: usize,
     /// The interreflection constant used (0: not modelled).
     pub interreflection: f32,
+    /// The mean share of the solved faces' corrections kept ([`ShadingFit::confidence`]).
+    pub confidence: f32,
 }
 
 /// Refines `mesh` (a mesh around the object, such as the masks') by the normals its faces'
@@ -711,11 +792,13 @@ pub fn refine_by_shading(
         ..RefineSettings::default()
     };
     let (refined, moves) = refine(mesh, &fit.normals, depth, &refine_settings)?;
+    let solved = fit.normals.weight.iter().filter(|w| **w > 0.0).count();
     Ok(ShadingRefined {
         mesh: refined,
         moves,
-        solved: fit.normals.weight.iter().filter(|w| **w > 0.0).count(),
+        solved,
         interreflection: fit.interreflection,
+        confidence: (fit.confidence.iter().sum::<f32>() / solved.max(1) as f32),
     })
 }
 
@@ -863,10 +946,50 @@ mod tests {
 
     /// A floor beside a lit wall, each lit by the other (one bounce): the wall's light adds
     /// to the floor's shading in the views that light it, and Lambert's fit leans; with the
-    /// interreflected light modelled, at the scene's constant (`1 / pi` for these renders) or
-    /// at the one calibrated on the images, the floor's normal is recovered.
+    /// interreflected light modelled, at the scene's constant (`1 / pi` for Lambertian
+    /// renders) or at the one calibrated on the images, the floor's normal is recovered.
     #[test]
     fn modelling_the_light_of_a_facing_wall_removes_its_lean() {
+        let k = std::f32::consts::FRAC_1_PI;
+        let (leaning, modelled, calibrated, c) = floor_beside_a_wall(k);
+        assert!(
+            leaning.iter().all(|a| *a > 2.0),
+            "Lambert's fit: {leaning:?}"
+        );
+        assert!(modelled.iter().all(|a| *a < 0.5), "modelled: {modelled:?}");
+        assert!(
+            calibrated.iter().all(|a| *a < 0.5),
+            "calibrated: {calibrated:?}"
+        );
+        assert!(
+            (c / k - 1.0).abs() < 0.2,
+            "calibrated c = {c}, the renders' {k}"
+        );
+    }
+
+    /// The same with a much stronger interreflection (the renders' constant 0.6, as a very
+    /// translucent object shows): the calibration looks past small constants and removes the
+    /// lean. (The renders' second bounce, which the model reads from the images as well, is
+    /// then no longer small, so the constant found lies below the renders'.)
+    #[test]
+    fn a_strong_interreflection_is_calibrated_too() {
+        let (leaning, _, calibrated, c) = floor_beside_a_wall(0.6);
+        assert!(
+            leaning.iter().all(|a| *a > 4.0),
+            "Lambert's fit: {leaning:?}"
+        );
+        assert!(
+            calibrated.iter().all(|a| *a < 0.5),
+            "calibrated: {calibrated:?} at c = {c}"
+        );
+        assert!(c > 0.4, "calibrated c = {c}");
+    }
+
+    /// Renders the floor and the wall with the interreflected light scaled by `k` (the
+    /// albedo times `k` times the irradiance) and returns the floor faces' angles to their
+    /// normal (degrees) under Lambert's fit, the model at `k` and the calibrated model, and
+    /// the calibrated constant.
+    fn floor_beside_a_wall(k: f32) -> (Vec<f32>, Vec<f32>, Vec<f32>, f32) {
         let mesh = TriMesh {
             positions: vec![
                 Vec3::new(-0.1, -0.1, 0.0),
@@ -937,13 +1060,12 @@ mod tests {
                             })
                             .sum()
                     };
-                    let pi = std::f32::consts::PI;
                     rad[p] = if n.z > 0.9 {
                         let e = irradiance(Vec3::Z, &cells, wall_n, rho_wall);
-                        lit(x, Vec3::Z, rho_floor) + rho_floor / pi * e
+                        lit(x, Vec3::Z, rho_floor) + rho_floor * k * e
                     } else {
                         let e = irradiance(wall_n, &floor, Vec3::Z, rho_floor);
-                        lit(x, wall_n, rho_wall) + rho_wall / pi * e
+                        lit(x, wall_n, rho_wall) + rho_wall * k * e
                     };
                 }
             }
@@ -973,27 +1095,14 @@ mod tests {
         let (leaning, _) = floor_error(&lambert);
         let (modelled, _) = floor_error(&ShadingSettings {
             interreflection: true,
-            interreflection_c: Some(std::f32::consts::FRAC_1_PI),
+            interreflection_c: Some(k),
             ..lambert
         });
         let (calibrated, c) = floor_error(&ShadingSettings {
             interreflection: true,
             ..lambert
         });
-        assert!(
-            leaning.iter().all(|a| *a > 2.0),
-            "Lambert's fit: {leaning:?}"
-        );
-        assert!(modelled.iter().all(|a| *a < 0.5), "modelled: {modelled:?}");
-        assert!(
-            calibrated.iter().all(|a| *a < 0.5),
-            "calibrated: {calibrated:?}"
-        );
-        assert!(
-            (c * std::f32::consts::PI - 1.0).abs() < 0.2,
-            "calibrated c = {c}, the renders' 1 / pi = {}",
-            std::f32::consts::FRAC_1_PI
-        );
+        (leaning, modelled, calibrated, c)
     }
 
     /// A grid over `[-0.2, 0.2]^2` with `n` cells a side, at height `z(x, y)`.
@@ -1007,13 +1116,18 @@ mod tests {
         Vec3::new(p.sin() * a.cos(), p.sin() * a.sin(), p.cos())
     }
 
-    /// A bowl the silhouettes cannot see, under a lid: the lid refined by the shading of the
-    /// bowl (Lambertian, the light at each camera) sinks to the bowl's depth in the middle and
-    /// stays where the surface is flat.
-    #[test]
-    fn the_shading_of_a_hidden_bowl_sinks_the_lid_over_it() {
-        let (depth, radius) = (0.02f32, 0.12f32);
-        let bowl = |x: f32, y: f32| -depth * (1.0 - (x * x + y * y) / (radius * radius)).max(0.0);
+    /// The bowl of depth `BOWL.0` and radius `BOWL.1` in a flat floor.
+    const BOWL: (f32, f32) = (0.02, 0.12);
+
+    fn bowl(x: f32, y: f32) -> f32 {
+        let (depth, radius) = BOWL;
+        -depth * (1.0 - (x * x + y * y) / (radius * radius)).max(0.0)
+    }
+
+    /// A flat lid over [`bowl`] refined by the bowl's Lambertian shading (the light at each
+    /// of 24 cameras, 96 px), each pixel's radiance scaled by `1 + noise u` with `u` uniform
+    /// in `[-1, 1)` (seeded).
+    fn refine_lid_over_bowl(noise: f32, settings: &ShadingRefinement) -> (TriMesh, ShadingRefined) {
         let truth = height_grid(48, bowl);
         let lid = height_grid(24, |_, _| 0.0);
         let cams: Vec<Camera> = (0..24)
@@ -1023,17 +1137,20 @@ mod tests {
             })
             .collect();
         let caster = crate::MeshRaycaster::new(&truth, "the bowl").unwrap();
-        let rads: Vec<Vec<f32>> = cams
-            .iter()
-            .map(|c| {
+        let rads: Vec<Vec<f32>> = (cams.iter().enumerate())
+            .map(|(k, c)| {
                 let eye = c.centre();
                 (0..96 * 96u32)
                     .map(|p| {
                         let (o, d) = c.pixel_ray(p % 96, p / 96);
+                        let hash = (u64::from(p) | (k as u64) << 32)
+                            .wrapping_add(1)
+                            .wrapping_mul(0x9E37_79B9_7F4A_7C15);
+                        let u = (hash >> 40) as f32 / (1u64 << 23) as f32 - 1.0;
                         caster.first_hit(o, d).map_or(0.0, |(t, n)| {
                             let to = eye - (o + t * d);
                             let r2 = to.length_squared();
-                            0.7 * n.dot(to / r2.sqrt()).max(0.0) / r2
+                            0.7 * n.dot(to / r2.sqrt()).max(0.0) / r2 * (1.0 + noise * u)
                         })
                     })
                     .collect()
@@ -1048,16 +1165,28 @@ mod tests {
                 mask: None,
             })
             .collect();
+        let refined = refine_by_shading(&lid, &images, None, settings).unwrap();
+        (lid, refined)
+    }
+
+    /// A bowl the silhouettes cannot see, under a lid: the lid refined by the shading of the
+    /// bowl (Lambertian, the light at each camera) sinks to the bowl's depth in the middle and
+    /// stays where the surface is flat.
+    #[test]
+    fn the_shading_of_a_hidden_bowl_sinks_the_lid_over_it() {
+        let (depth, radius) = BOWL;
         let settings = ShadingRefinement {
             anchor: 0.5,
             ..ShadingRefinement::default()
         };
-        let refined = refine_by_shading(&lid, &images, None, &settings).unwrap();
+        let (lid, refined) = refine_lid_over_bowl(0.0, &settings);
         assert!(
             refined.solved > lid.triangles.len() / 2,
             "{}",
             refined.solved
         );
+        // Clean images: the shrinkage keeps nearly all of each correction.
+        assert!(refined.confidence > 0.99, "{}", refined.confidence);
         for (v, d) in lid.positions.iter().zip(&refined.moves) {
             let want = bowl(v.x, v.y);
             let r = v.truncate().length();
@@ -1070,5 +1199,56 @@ mod tests {
         }
         // Inward only, up to the default's zero outward bound.
         assert!(refined.moves.iter().all(|d| *d <= 0.0));
+    }
+
+    /// The same bowl under noisy images (each pixel off by up to 30 %): shrinking each face's
+    /// normal by its uncertainty (`ShadingSettings::shrink`) keeps the flat floor much flatter
+    /// than the plain solve does, and the lid still sinks over the bowl, if less deep.
+    #[test]
+    fn shrinking_noisy_normals_keeps_the_flat_floor_flat() {
+        let shrunk = ShadingRefinement {
+            anchor: 0.5,
+            ..ShadingRefinement::default()
+        };
+        assert!(shrunk.shading.shrink);
+        let plain = ShadingRefinement {
+            shading: ShadingSettings {
+                shrink: false,
+                ..shrunk.shading
+            },
+            ..shrunk
+        };
+        let (depth, radius) = BOWL;
+        // Per run: the RMS move on the flat floor, the mean move at the bowl's centre and the
+        // share of the corrections kept.
+        let score = |settings: &ShadingRefinement| -> (f32, f32, f32) {
+            let (lid, refined) = refine_lid_over_bowl(0.3, settings);
+            let (mut flat, mut nf, mut centre, mut nc) = (0.0f32, 0usize, 0.0f32, 0usize);
+            for (v, d) in lid.positions.iter().zip(&refined.moves) {
+                let r = v.truncate().length();
+                if r > 1.3 * radius && v.x.abs() < 0.18 && v.y.abs() < 0.18 {
+                    flat += d * d;
+                    nf += 1;
+                }
+                if r < 0.3 * radius {
+                    centre += d;
+                    nc += 1;
+                }
+            }
+            (
+                (flat / nf as f32).sqrt(),
+                centre / nc as f32,
+                refined.confidence,
+            )
+        };
+        let (flat_plain, _, kept_plain) = score(&plain);
+        let (flat_shrunk, centre, kept) = score(&shrunk);
+        assert_eq!(kept_plain, 1.0);
+        assert!(kept > 0.1 && kept < 0.9, "share kept {kept}");
+        assert!(
+            flat_shrunk < 0.5 * flat_plain,
+            "RMS move on the floor: shrunk {flat_shrunk}, plain {flat_plain}"
+        );
+        assert!(centre < -0.25 * depth, "the centre moved {centre}");
     }
 }

@@ -50,19 +50,13 @@ fn trains_a_tiny_scene_and_writes_every_output() {
         &out,
         &[
             &TINY_RUN[..],
-            &[
-                "--eval-points",
-                "2",
-                "--checkpoint-every",
-                "0",
-                "--shading-anchor",
-                "1",
-            ],
+            &["--eval-points", "2", "--checkpoint-every", "0"],
         ]
         .concat(),
     );
     assert!(o.status.success(), "{}", text(&o));
-    // The scene is lit from the camera and masked: the final mesh is refined by its shading.
+    // The scene is lit from the camera and masked: by default the final mesh is refined by its
+    // shading.
     assert!(
         text(&o).contains("shading refinement: normals solved on"),
         "{}",
@@ -456,6 +450,7 @@ fn help_has_one_heading_per_settings_struct_and_no_experiments() {
         "--scatter-lambert",
         "--smooth-scatter",
         "--shading-depth",
+        "--shading-shrink",
     ] {
         assert!(!help.contains(gone), "{gone} is an experiment\n{help}");
     }

@@ -99,6 +99,10 @@ pub struct ShadingStereoArgs {
     /// With `--interreflection`: hold its constant `c` at this value instead of calibrating it.
     #[arg(long)]
     pub interreflection_c: Option<f32>,
+    /// Shrink each face's normal towards its own by its uncertainty
+    /// (`ShadingSettings::shrink`).
+    #[arg(long)]
+    pub shrink: bool,
     /// Keep the shading normal only on faces at least this open to the outside (the fraction
     /// of their hemisphere no other part of the object faces); the others keep their own
     /// (0: everywhere).
@@ -424,6 +428,7 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
         response: args.response,
         interreflection: args.interreflection,
         interreflection_c: args.interreflection_c,
+        shrink: args.shrink,
         ..ShadingSettings::default()
     };
     // The masks' mesh's surroundings: for the openness (the diagnostics, `--min-openness`) and
@@ -529,9 +534,17 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
                     eyes,
                     response,
                     interreflection,
+                    confidence,
                 },
                 truth,
             ) = observe(&mesh, round)?;
+            if args.shrink {
+                let solved = shading.weight.iter().filter(|w| **w > 0.0).count();
+                println!(
+                    "shrink: mean share of the correction kept {:.3}",
+                    confidence.iter().sum::<f32>() / solved.max(1) as f32
+                );
+            }
             let own = own_normals(&mesh);
             if args.interreflection {
                 println!("interreflection: c = {interreflection:.4}");
