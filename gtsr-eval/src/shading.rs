@@ -275,6 +275,40 @@ fn fit_normal(samples: &[Sample], resp: &Response, mut n: Vec3, n0: Vec3, ridge:
     n
 }
 
+/// Where `f`, falling on `[0, 1]`, crosses zero: bracketed on steps of 0.05, narrowed by four
+/// bisections, interpolated within the bracket. 0 where `f(0) <= 0`; without a crossing, the
+/// step of the least `|f|`.
+fn falling_zero(f: impl Fn(f32) -> f64) -> f32 {
+    let mut lo = (0.0f32, f(0.0));
+    if lo.1 <= 0.0 {
+        return 0.0;
+    }
+    let mut best = lo;
+    for k in 1..=20 {
+        let x = 0.05 * k as f32;
+        let y = f(x);
+        if y <= 0.0 {
+            let mut hi = (x, y);
+            for _ in 0..4 {
+                let x = 0.5 * (lo.0 + hi.0);
+                let y = f(x);
+                if y <= 0.0 {
+                    hi = (x, y);
+                } else {
+                    lo = (x, y);
+                }
+            }
+            let t = lo.1 / (lo.1 - hi.1).max(f64::MIN_POSITIVE);
+            return lo.0 + (hi.0 - lo.0) * t as f32;
+        }
+        if y.abs() < best.1.abs() {
+            best = (x, y);
+        }
+        lo = (x, y);
+    }
+    best.0
+}
+
 /// What the rest of the object shows each face: where rays cast over the face's outer
 /// hemisphere (cosine-weighted) first hit the mesh again.
 pub struct Surroundings {
@@ -553,42 +587,14 @@ pub fn shading_normals(
                 }
                 if n == 0 { 0.0 } else { sum / n as f64 }
             };
-            // The lean falls as `c` grows: bracket its zero on a coarse scan of `(0, 1]`,
-            // narrow the bracket by bisection, interpolate within it. Without a zero, the `c`
-            // of the least lean scanned.
-            let mut lo = (0.0f32, lean(&lambert));
-            let mut best = lo;
-            let mut hi = None;
-            if lo.1 > 0.0 {
-                for k in 1..=20 {
-                    let c = 0.05 * k as f32;
-                    let l = lean(&at(c));
-                    if l <= 0.0 {
-                        hi = Some((c, l));
-                        break;
-                    }
-                    if l.abs() < best.1.abs() {
-                        best = (c, l);
-                    }
-                    lo = (c, l);
+            // The lean falls as `c` grows.
+            let c = falling_zero(|c| {
+                if c == 0.0 {
+                    lean(&lambert)
+                } else {
+                    lean(&at(c))
                 }
-            }
-            let c = match hi {
-                Some(mut hi) => {
-                    for _ in 0..4 {
-                        let c = 0.5 * (lo.0 + hi.0);
-                        let l = lean(&at(c));
-                        if l <= 0.0 {
-                            hi = (c, l);
-                        } else {
-                            lo = (c, l);
-                        }
-                    }
-                    let t = lo.1 / (lo.1 - hi.1).max(f64::MIN_POSITIVE);
-                    lo.0 + (hi.0 - lo.0) * t as f32
-                }
-                None => best.0,
-            };
+            });
             (at(c), c)
         }
     };
@@ -822,6 +828,18 @@ mod tests {
                 mesh_depth: d,
             })
             .collect()
+    }
+
+    /// The calibration's root finder: a crossing inside a step, past the old scan's 0.4, none
+    /// (the least value), and none to find (0).
+    #[test]
+    fn the_zero_of_a_falling_function() {
+        for root in [0.0123f32, 0.37, 0.52, 0.999] {
+            let got = falling_zero(|c| f64::from(root - c) * (1.0 + f64::from(c)));
+            assert!((got - root).abs() < 1e-3, "root {root}: got {got}");
+        }
+        assert_eq!(falling_zero(|c| f64::from(2.0 - c)), 1.0);
+        assert_eq!(falling_zero(|c| f64::from(-0.1 - c)), 0.0);
     }
 
     /// A flat square facing +z (two faces).
