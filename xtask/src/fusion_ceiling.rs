@@ -63,8 +63,8 @@ pub struct FusionCeilingArgs {
     #[arg(long)]
     pub hull_inside_distance: bool,
     /// Also carve the masks at the dataset's resolution with the true depth (gtsr-train's
-    /// default extraction, `gtsr_eval::carve`; with each of `--biases` too), beside the masks
-    /// alone.
+    /// default extraction without its last step, the shading refinement; `gtsr_eval::carve`;
+    /// with each of `--biases` too), beside the masks alone.
     #[arg(long)]
     pub carve: bool,
     /// Carving: agreeing views (gtsr-train's `--carve-views`).
@@ -410,6 +410,9 @@ fn carve_rows(
         carve_concavity_gate: args.carve_concavity_gate,
         carve_gate_radius: args.carve_gate_radius,
         cull_unobserved: args.cull_unobserved,
+        // The carving alone: the shading refinement that follows it in gtsr-train reads the
+        // images, not the depth (`shading-stereo` measures it).
+        shading_anchor: 0.0,
         ..MeshConfig::default()
     };
     for bias in std::iter::once(0.0).chain(args.biases.iter().copied()) {
