@@ -111,6 +111,18 @@ pub struct ShadingFit {
     pub confidence: Vec<f32>,
 }
 
+impl ShadingFit {
+    /// The faces whose normal was solved.
+    pub fn solved(&self) -> usize {
+        self.normals.weight.iter().filter(|w| **w > 0.0).count()
+    }
+
+    /// The mean share of the solved faces' corrections kept ([`ShadingFit::confidence`]).
+    pub fn mean_confidence(&self) -> f32 {
+        self.confidence.iter().sum::<f32>() / self.solved().max(1) as f32
+    }
+}
+
 /// A piecewise-linear function of the cosine on `knots` evenly spaced points of
 /// `[lo, 1]`, extended linearly beyond them and never negative.
 struct Response {
@@ -390,7 +402,11 @@ fn surroundings_cast(mesh: &TriMesh, caster: &crate::MeshRaycaster, rays: usize)
 /// gives it, `c` is calibrated on the images and the masks' mesh alone: the value at which, on
 /// the faces less than 90 % open, the solved normals lean neither towards nor away from the
 /// eyes that see them, relative to the faces' own normals where the two agree within 10
-/// degrees (0 where no face is that closed).
+/// degrees, searched in `[0, 1]` (0 where no face is that closed or nothing leans; without a
+/// zero, the least lean).
+///
+/// With `ShadingSettings::shrink`, each solved normal is then shrunk towards the face's own by
+/// its uncertainty; `ShadingFit::confidence` gives the share of each correction kept.
 pub fn shading_normals(
     mesh: &TriMesh,
     views: &[ShadingView<'_>],
@@ -496,9 +512,10 @@ pub fn shading_normals(
     }
     drop(next);
     // The linear fit of one face with the interreflected part `c |b| E r^2` taken off at the
-    // `|b|` given, and the variance of the angle of its direction (the residual variance
-    // through the inverse normal matrix, on the plane across `b`).
-    let solve = |f: usize, c: f32, b_prev: f32| -> Option<(Vec3, f32)> {
+    // `|b|` given, and, with `with_var` and the shrinkage, the variance of the angle of its
+    // direction (the residual variance through the inverse normal matrix, on the plane across
+    // `b`; else 0).
+    let solve = |f: usize, c: f32, b_prev: f32, with_var: bool| -> Option<(Vec3, f32)> {
         let s = &samples[start[f]..start[f + 1]];
         if s.len() < settings.min_views.max(3) {
             return None;
@@ -539,7 +556,7 @@ pub fn shading_normals(
             let inv = m.inverse();
             (inv * (atb.truncate() + lambda * albedo * n0), 0.0, inv)
         };
-        let var = if settings.shrink && s.len() > params {
+        let var = if with_var && settings.shrink && s.len() > params {
             let rss: f32 = (s.iter())
                 .map(|x| (x.y - c * b_prev * x.e - x.w.dot(b) - a).powi(2))
                 .sum();
@@ -552,13 +569,15 @@ pub fn shading_normals(
         };
         Some((b, var))
     };
-    let lambert: Vec<Option<(Vec3, f32)>> = (0..nf).map(|f| solve(f, 0.0, 0.0)).collect();
-    // The faces' fits at a given `c` (each face's `|b|` in turn).
-    let at = |c: f32| -> Vec<Option<(Vec3, f32)>> {
+    let lambert: Vec<Option<(Vec3, f32)>> = (0..nf).map(|f| solve(f, 0.0, 0.0, true)).collect();
+    // The faces' fits at a given `c` (each face's `|b|` in turn), with the variances of the
+    // last round when `with_var`.
+    let at = |c: f32, with_var: bool| -> Vec<Option<(Vec3, f32)>> {
         let mut b = lambert.clone();
-        for _ in 0..4 {
+        for round in 0..4 {
+            let var = with_var && round == 3;
             b = (0..nf)
-                .map(|f| b[f].and_then(|(bf, _)| solve(f, c, bf.length())))
+                .map(|f| b[f].and_then(|(bf, _)| solve(f, c, bf.length(), var)))
                 .collect();
         }
         b
@@ -566,7 +585,7 @@ pub fn shading_normals(
     let eyes: Vec<Vec3> = eyes.into_iter().map(Vec3::normalize_or_zero).collect();
     let (b, c) = match (interreflection, settings.interreflection_c) {
         (None, _) => (lambert, 0.0),
-        (Some(_), Some(c)) => (at(c), c),
+        (Some(_), Some(c)) => (at(c, true), c),
         (Some(s), None) => {
             // `c` such that, on the faces other parts of the object face (less than 90 %
             // open), the normals lean neither towards nor away from the eyes that see them,
@@ -592,10 +611,10 @@ pub fn shading_normals(
                 if c == 0.0 {
                     lean(&lambert)
                 } else {
-                    lean(&at(c))
+                    lean(&at(c, false))
                 }
             });
-            (at(c), c)
+            (at(c, true), c)
         }
     };
     if interreflection.is_some() {
@@ -798,13 +817,12 @@ pub fn refine_by_shading(
         ..RefineSettings::default()
     };
     let (refined, moves) = refine(mesh, &fit.normals, depth, &refine_settings)?;
-    let solved = fit.normals.weight.iter().filter(|w| **w > 0.0).count();
     Ok(ShadingRefined {
         mesh: refined,
         moves,
-        solved,
+        solved: fit.solved(),
         interreflection: fit.interreflection,
-        confidence: (fit.confidence.iter().sum::<f32>() / solved.max(1) as f32),
+        confidence: fit.mean_confidence(),
     })
 }
 

@@ -528,23 +528,20 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
         let mut mesh = hull.clone();
         for round in 1..=args.rounds {
             let t = std::time::Instant::now();
-            let (
-                ShadingFit {
-                    normals: mut shading,
-                    eyes,
-                    response,
-                    interreflection,
-                    confidence,
-                },
-                truth,
-            ) = observe(&mesh, round)?;
+            let (fit, truth) = observe(&mesh, round)?;
             if args.shrink {
-                let solved = shading.weight.iter().filter(|w| **w > 0.0).count();
                 println!(
                     "shrink: mean share of the correction kept {:.3}",
-                    confidence.iter().sum::<f32>() / solved.max(1) as f32
+                    fit.mean_confidence()
                 );
             }
+            let ShadingFit {
+                normals: mut shading,
+                eyes,
+                response,
+                interreflection,
+                ..
+            } = fit;
             let own = own_normals(&mesh);
             if args.interreflection {
                 println!("interreflection: c = {interreflection:.4}");
