@@ -32,10 +32,10 @@ pub use consistency::{ConsistencySettings, DepthView, filter_consistent};
 pub use depth::{DepthComparison, DepthMetrics, MeshDepth, MeshRaycaster};
 pub use error::{EvalError, Result};
 pub use extraction::{
-    DepthGeometry, Fusion, FusionInputs, FusionView, MasksAlone, MeshConfig, extract_mesh,
-    prepare_depth,
+    DepthGeometry, EdgeHull, Fusion, FusionInputs, FusionView, MasksAlone, MeshConfig,
+    extract_mesh, prepare_depth,
 };
-pub use hull::{masks_mesh, visual_hull};
+pub use hull::{coverage_to_distance, masks_mesh, visual_hull};
 pub use marching::{Grid, marching_cubes};
 pub use mesh::{largest_component, sample_surface, weld};
 pub use metrics::{

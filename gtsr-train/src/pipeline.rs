@@ -275,12 +275,14 @@ fn fusion_views(
 
 /// With a mask on every training view: the masks at the dataset's own resolution (loaded again
 /// when training downscales), their mesh and, with `shading`, the views' linear radiance at
-/// that size (for the shading refinement); `None` otherwise.
+/// that size (for the shading refinement), and with `edge_hull` the hull of their edges that
+/// bounds the extraction ([`gtsr_eval::MasksAlone::with_edge_distance`]); `None` otherwise.
 fn native_masks(
     data_dir: &Path,
     opts: &LoadOptions,
     scene: &Scene,
     shading: bool,
+    edge_hull: bool,
 ) -> Result<Option<gtsr_eval::MasksAlone>> {
     if scene.train.iter().any(|v| v.mask.is_none()) {
         return Ok(None);
@@ -332,17 +334,29 @@ fn native_masks(
         ),
         (m, _) => m,
     };
-    if let Some(m) = &masks {
+    let Some(mut masks) = masks else {
+        return Ok(None);
+    };
+    println!(
+        "masks alone at {}x{}: {} triangles, voxel {:.4} ({:.1} s)",
+        masks.views[0].0.width,
+        masks.views[0].0.height,
+        masks.mesh.triangles.len(),
+        masks.voxel,
+        t0.elapsed().as_secs_f64()
+    );
+    if edge_hull {
+        let t0 = Instant::now();
+        masks = masks
+            .with_edge_distance()
+            .with_context(|| format!("the masks' edges of {}", data_dir.display()))?;
         println!(
-            "masks alone at {}x{}: {} triangles, voxel {:.4} ({:.1} s)",
-            m.views[0].0.width,
-            m.views[0].0.height,
-            m.mesh.triangles.len(),
-            m.voxel,
+            "hull of the masks' edges: {} triangles ({:.1} s)",
+            masks.bound_mesh().triangles.len(),
             t0.elapsed().as_secs_f64()
         );
     }
-    Ok(masks)
+    Ok(Some(masks))
 }
 
 /// 3DGS's scene extent: 1.1 times the largest distance of a camera centre from their mean.
@@ -593,7 +607,8 @@ pub fn run(args: &Args) -> Result<Outcome> {
     if mesh_config.shading_anchor > 0.0 && !shading {
         println!("shading refinement: off (the light is not known to be at the camera)");
     }
-    let masks = native_masks(&data_dir, &opts, &scene, shading)?;
+    let edge_hull = mesh_config.edge_hull && mesh_config.fusion == gtsr_eval::Fusion::Carve;
+    let masks = native_masks(&data_dir, &opts, &scene, shading, edge_hull)?;
     let mesh_settings = MeshSettings {
         fusion_views: fusion_views(mesh_config.mesh_resolution, &data_dir, &opts, &scene)?,
         config: mesh_config,

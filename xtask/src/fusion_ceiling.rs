@@ -340,8 +340,11 @@ fn carve_rows(
         .collect();
     let (lo, hi) = gtsr_eval::hull::hull_box(&masks)?.context("empty masks")?;
     let t0 = Instant::now();
+    // Bounded by the hull of the masks' edges, as gtsr-train's default; scored against the
+    // masks alone.
     let alone = MasksAlone::new(masks.iter().map(|(c, m)| (*c, m.to_vec())).collect())?
-        .context("empty masks")?;
+        .context("empty masks")?
+        .with_edge_distance()?;
     let hull = alone.mesh.clone();
     let mut rows = Vec::new();
     let mut score = |label: String, mesh: &gtsr_data::ply::TriMesh, secs: f64| -> Result<()> {
