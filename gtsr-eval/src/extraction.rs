@@ -209,8 +209,9 @@ pub struct MeshConfig {
     /// views agree with it ([`crate::filter_consistent`]); the others cast no vote.
     #[arg(skip)]
     pub depth_consistency: Option<ConsistencySettings>,
-    /// Carving: bound the mesh by the hull of the masks' edges ([`MasksAlone::with_edge_distance`])
-    /// rather than by the masks' coverage interpolated between pixel centres (the baseline).
+    /// Carving: bound the mesh by the hull of the masks' edges ([`MasksAlone::with_edge_distance`],
+    /// where the masks carry it; gtsr-train builds it when this is set) rather than by the
+    /// masks' coverage interpolated between pixel centres (the baseline).
     #[arg(skip = true)]
     pub edge_hull: bool,
 }
@@ -449,12 +450,9 @@ impl MasksAlone {
         let views = (self.views.par_iter())
             .map(|(c, m)| crate::hull::coverage_to_distance(m, c.width as usize, c.height as usize))
             .collect::<Result<Vec<_>>>()?;
-        let borrowed: Vec<(Camera, &[f32])> = (self.views.iter().zip(&views))
-            .map(|((c, _), d)| (*c, d.as_slice()))
-            .collect();
-        let mesh = crate::masks_mesh(&borrowed, Some(self.voxel))?.ok_or_else(|| {
-            EvalError::InvalidArgument("the hull of the masks' edges is empty".into())
-        })?;
+        let mesh = crate::masks_mesh(&paired(&self.views, &views), Some(self.voxel))?.ok_or_else(
+            || EvalError::InvalidArgument("the hull of the masks' edges is empty".into()),
+        )?;
         self.edge_hull = Some(EdgeHull { views, mesh });
         Ok(self)
     }
@@ -467,9 +465,7 @@ impl MasksAlone {
     /// The views that bound the extraction: the edge hull's when there is one, else the masks.
     pub fn bound(&self) -> Vec<(Camera, &[f32])> {
         match &self.edge_hull {
-            Some(e) => (self.views.iter().zip(&e.views))
-                .map(|((c, _), d)| (*c, d.as_slice()))
-                .collect(),
+            Some(e) => paired(&self.views, &e.views),
             None => self.borrowed(),
         }
     }
@@ -482,6 +478,15 @@ impl MasksAlone {
 
 fn borrow(views: &[(Camera, Vec<f32>)]) -> Vec<(Camera, &[f32])> {
     views.iter().map(|(c, m)| (*c, m.as_slice())).collect()
+}
+
+/// The views' cameras with other images of the same size (the edge hull's).
+fn paired<'a>(views: &'a [(Camera, Vec<f32>)], images: &'a [Vec<f32>]) -> Vec<(Camera, &'a [f32])> {
+    views
+        .iter()
+        .zip(images)
+        .map(|((c, _), d)| (*c, d.as_slice()))
+        .collect()
 }
 
 /// One view as the fusion reads it: z-depth (0 where nothing is measured) and the mask (the
@@ -591,13 +596,19 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
         && inputs.masked
         && let Some(masks) = inputs.masks
     {
+        // The bound: the edge hull where the masks carry one and the settings ask for it.
+        let (bound, bound_mesh) = if config.edge_hull {
+            (masks.bound(), masks.bound_mesh())
+        } else {
+            (masks.borrowed(), &masks.mesh)
+        };
         if !config.fuse_depth {
-            return Ok((masks.bound_mesh().clone(), notes));
+            return Ok((bound_mesh.clone(), notes));
         }
         let maps = consistent_maps(config, inputs, &mut notes)?;
         // The hull's own depth, for the concavity gate: the masks' mesh ray cast per view.
         let hull_maps: Vec<Vec<f32>> = if config.carve_concavity_gate > 0.0 {
-            let caster = MeshRaycaster::new(masks.bound_mesh(), "the masks' mesh")?;
+            let caster = MeshRaycaster::new(bound_mesh, "the masks' mesh")?;
             inputs
                 .views
                 .iter()
@@ -619,7 +630,7 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
             .collect();
         let voxel = config.carve_voxel.unwrap_or(masks.voxel);
         let carve = config.carve();
-        let (mut mesh, gate) = carve_mesh_counted(&masks.bound(), &depths, lo, hi, voxel, &carve)?;
+        let (mut mesh, gate) = carve_mesh_counted(&bound, &depths, lo, hi, voxel, &carve)?;
         if let Some(g) = gate {
             notes.push(format!(
                 "concavity gate: {} of {} depth samples lie more than {} footprints behind the \
@@ -629,7 +640,7 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
         }
         if config.cull_unobserved > 0.0 {
             // Only the carving's own walls (off the masks' mesh) must be seen by a depth map.
-            let hull = SignedDistance::new(masks.bound_mesh(), "the masks' mesh")?;
+            let hull = SignedDistance::new(bound_mesh, "the masks' mesh")?;
             let walls: Vec<bool> = mesh
                 .triangles
                 .par_iter()

@@ -1173,16 +1173,14 @@ mod tests {
             })
             .collect();
         let caster = crate::MeshRaycaster::new(&truth, "the bowl").unwrap();
-        let rads: Vec<Vec<f32>> = (cams.iter().enumerate())
-            .map(|(k, c)| {
+        let mut rng = crate::mesh::SplitMix64::new(0);
+        let rads: Vec<Vec<f32>> = (cams.iter())
+            .map(|c| {
                 let eye = c.centre();
                 (0..96 * 96u32)
                     .map(|p| {
                         let (o, d) = c.pixel_ray(p % 96, p / 96);
-                        let hash = (u64::from(p) | (k as u64) << 32)
-                            .wrapping_add(1)
-                            .wrapping_mul(0x9E37_79B9_7F4A_7C15);
-                        let u = (hash >> 40) as f32 / (1u64 << 23) as f32 - 1.0;
+                        let u = 2.0 * rng.next_f64() as f32 - 1.0;
                         caster.first_hit(o, d).map_or(0.0, |(t, n)| {
                             let to = eye - (o + t * d);
                             let r2 = to.length_squared();
