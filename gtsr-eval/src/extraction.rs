@@ -84,8 +84,9 @@ pub const DEFAULT_CONCAVITY_GATE: f32 = 3.0;
 pub const DEFAULT_CULL_UNOBSERVED: f32 = 3.0;
 /// How far the shading refinement may move a vertex outward, in the masks' footprints.
 const SHADING_MAX_OUTWARD: f32 = 0.25;
-/// The default of [`MeshConfig::shading_anchor`], footprints.
-pub const DEFAULT_SHADING_ANCHOR: f32 = 0.5;
+/// The default of [`MeshConfig::shading_anchor`], footprints: off. On the edge hull the
+/// shading normals' errors cost more than they correct.
+pub const DEFAULT_SHADING_ANCHOR: f32 = 0.0;
 /// The default of [`MeshConfig::shading_depth_threshold`], footprints.
 pub const DEFAULT_SHADING_DEPTH_THRESHOLD: f32 = 0.25;
 /// [`MeshConfig::shading_depth`]: the depth's offsets count on faces at least this many views
@@ -143,8 +144,8 @@ pub struct MeshConfig {
     /// under a light at the camera (the paper's capture), with the light the object sends
     /// itself modelled and each normal shrunk towards the mesh's own by its uncertainty; each
     /// vertex moves along its normal, held to where it was over this many of the masks' pixel
-    /// footprints (0: off). Only where the light is at the camera (the PBR component's
-    /// decision); the final mesh only, not the evaluations during training.
+    /// footprints (0: off, the default). Only where the light is at the camera (the PBR
+    /// component's decision); the final mesh only, not the evaluations during training.
     #[arg(long = "shading-anchor", id = "mesh.shading_anchor", value_name = "FOOTPRINTS",
           default_value_t = DEFAULT_SHADING_ANCHOR, value_parser = parse_non_negative)]
     pub shading_anchor: f32,
@@ -214,6 +215,11 @@ pub struct MeshConfig {
     /// masks' coverage interpolated between pixel centres (the baseline).
     #[arg(skip = true)]
     pub edge_hull: bool,
+    /// With [`MeshConfig::edge_hull`]: read every mask with a Gaussian edge profile of this
+    /// many pixels, or as box-filtered at 0 (`None`: the profile the masks' edge width says,
+    /// [`crate::EdgeProfile::from_width`]).
+    #[arg(skip)]
+    pub edge_sigma: Option<f32>,
 }
 
 impl Default for MeshConfig {
@@ -244,11 +250,23 @@ impl Default for MeshConfig {
             snap_to_hull: None,
             depth_consistency: None,
             edge_hull: true,
+            edge_sigma: None,
         }
     }
 }
 
 impl MeshConfig {
+    /// The edge profile [`MeshConfig::edge_sigma`] asks for (`None`: the measured one).
+    pub fn edge_profile(&self) -> Option<crate::EdgeProfile> {
+        self.edge_sigma.map(|sigma| {
+            if sigma > 0.0 {
+                crate::EdgeProfile::Gaussian { sigma }
+            } else {
+                crate::EdgeProfile::Box
+            }
+        })
+    }
+
     /// The carving rule.
     pub fn carve(&self) -> CarveSettings {
         CarveSettings {
@@ -307,6 +325,13 @@ impl MeshConfig {
         }
         if self.mesh_resolution == Some(0) {
             return bad("mesh.mesh_resolution must be at least 1".into());
+        }
+        if let Some(s) = self.edge_sigma
+            && !(s.is_finite() && s >= 0.0)
+        {
+            return bad(format!(
+                "mesh.edge_sigma must be a number of pixels >= 0 (0: a box), got {s}"
+            ));
         }
         if !(self.cull_unobserved.is_finite() && self.cull_unobserved >= 0.0) {
             return bad(format!(
@@ -397,6 +422,10 @@ pub struct EdgeHull {
     pub views: Vec<Vec<f32>>,
     /// Its mesh, on the grid of [`MasksAlone::mesh`].
     pub mesh: TriMesh,
+    /// The edge profile the masks were read with.
+    pub profile: crate::EdgeProfile,
+    /// The masks' measured edge width ([`crate::edge_width`]; 0 when none has an edge).
+    pub width: f32,
 }
 
 impl MasksAlone {
@@ -445,15 +474,32 @@ impl MasksAlone {
 
     /// With the hull of the masks' edges ([`EdgeHull`]), which then bounds the extraction
     /// ([`MasksAlone::bound`], [`MasksAlone::bound_mesh`]); [`MasksAlone::mesh`] stays the
-    /// baseline. Errors when the edge hull is empty.
-    pub fn with_edge_distance(mut self) -> Result<Self> {
-        let views = (self.views.par_iter())
-            .map(|(c, m)| crate::hull::coverage_to_distance(m, c.width as usize, c.height as usize))
+    /// baseline. The masks are read with the profile their edges' width says
+    /// ([`crate::edge_width`], [`crate::EdgeProfile::from_width`]): a box filter, or the
+    /// smooth filter of a renderer such as Blender Cycles. Errors when the edge hull is empty.
+    pub fn with_edge_distance(self) -> Result<Self> {
+        self.with_edge_profile(None)
+    }
+
+    /// [`MasksAlone::with_edge_distance`] with this profile (`None`: the measured one).
+    pub fn with_edge_profile(mut self, profile: Option<crate::EdgeProfile>) -> Result<Self> {
+        let sized: Vec<(&[f32], usize, usize)> = (self.views.iter())
+            .map(|(c, m)| (m.as_slice(), c.width as usize, c.height as usize))
+            .collect();
+        let width = crate::edge_width(&sized).unwrap_or(0.0);
+        let profile = profile.unwrap_or_else(|| crate::EdgeProfile::from_width(width));
+        let views = (sized.par_iter())
+            .map(|&(m, w, h)| crate::hull::coverage_to_distance_with(m, w, h, profile))
             .collect::<Result<Vec<_>>>()?;
         let mesh = crate::masks_mesh(&paired(&self.views, &views), Some(self.voxel))?.ok_or_else(
             || EvalError::InvalidArgument("the hull of the masks' edges is empty".into()),
         )?;
-        self.edge_hull = Some(EdgeHull { views, mesh });
+        self.edge_hull = Some(EdgeHull {
+            views,
+            mesh,
+            profile,
+            width,
+        });
         Ok(self)
     }
 
@@ -950,6 +996,13 @@ mod tests {
                 },
                 "mesh.shading_anchor",
             ),
+            (
+                MeshConfig {
+                    edge_sigma: Some(-0.4),
+                    ..Default::default()
+                },
+                "mesh.edge_sigma",
+            ),
         ] {
             let e = c.validate().unwrap_err().to_string();
             assert!(e.contains(word), "{e}");
@@ -960,6 +1013,19 @@ mod tests {
             ..Default::default()
         };
         assert_eq!(c.tsdf_settings_set(), ["voxel", "snap_to_hull"]);
+        let sigma = |s| MeshConfig {
+            edge_sigma: s,
+            ..Default::default()
+        };
+        assert_eq!(sigma(None).edge_profile(), None);
+        assert_eq!(
+            sigma(Some(0.0)).edge_profile(),
+            Some(crate::EdgeProfile::Box)
+        );
+        assert_eq!(
+            sigma(Some(0.4)).edge_profile(),
+            Some(crate::EdgeProfile::Gaussian { sigma: 0.4 })
+        );
     }
 
     #[test]

@@ -7,10 +7,11 @@
 //! constrains only the points in front of it that project inside its image. Points seen by
 //! no view, and the faces of the bounding box, count as outside, so the hull is closed.
 //!
-//! [`coverage_to_distance`] turns a coverage mask into an image the same functions read as
-//! the signed distance to the mask's edge; the hull of those images
-//! ([`crate::MasksAlone::with_edge_distance`]) does not sink into the object as the coverage's
-//! does at low resolution.
+//! [`coverage_to_distance_with`] turns a mask into an image the same functions read as the
+//! signed distance to the mask's edge, by the mask's [`EdgeProfile`] (a box-filtered pixel, or
+//! a smooth pixel filter whose width [`edge_width`] measures on the masks themselves); the
+//! hull of those images ([`crate::MasksAlone::with_edge_distance`]) does not collect every
+//! view's inward miss of the edge as the hull of the interpolated masks does.
 
 use glam::Vec3;
 use gtsr_data::Camera;
@@ -61,20 +62,128 @@ fn edge_distance(gx: f32, gy: f32, coverage: f32) -> f32 {
     }
 }
 
+/// How a mask's value falls across its edge: what [`coverage_to_distance_with`] inverts.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum EdgeProfile {
+    /// A box-filtered pixel: the fraction of the pixel's square the object covers (a straight
+    /// edge cuts a trapezoid or a corner triangle).
+    Box,
+    /// A smooth pixel filter wider than the pixel (Blender Cycles' Blackman-Harris, say): the
+    /// value at signed distance `d` from the edge (pixels, positive outside) is
+    /// `Phi(-d / sigma)`, `Phi` the standard normal distribution function.
+    Gaussian {
+        /// The filter's standard deviation across the edge, in pixels.
+        sigma: f32,
+    },
+}
+
+/// The Sobel gradient `(x, y)` at pixel `(i, j)` of an image read through `at` (8 times the
+/// gradient per pixel).
+fn sobel(at: &impl Fn(isize, isize) -> f32, i: isize, j: isize) -> (f32, f32) {
+    let gx = at(i + 1, j - 1) + 2.0 * at(i + 1, j) + at(i + 1, j + 1)
+        - at(i - 1, j - 1)
+        - 2.0 * at(i - 1, j)
+        - at(i - 1, j + 1);
+    let gy = at(i - 1, j + 1) + 2.0 * at(i, j + 1) + at(i + 1, j + 1)
+        - at(i - 1, j - 1)
+        - 2.0 * at(i, j - 1)
+        - at(i + 1, j - 1);
+    (gx, gy)
+}
+
+/// [`edge_width`] of a box-filtered straight edge along a pixel axis.
+pub const BOX_EDGE_WIDTH: f32 = 1.0 / 6.0;
+
+/// How wide the masks' edges are, in pixels: the sum over pixels of `a (1 - a)` over the sum of
+/// the value's gradient length (Sobel, per pixel), pooled over every `(mask, w, h)`. The
+/// gradient sums to the edge's length whatever the profile, so this is `int F (1 - F)` across
+/// the edge for a profile `F`: [`BOX_EDGE_WIDTH`] for a box-filtered edge along an axis (less
+/// when slanted), `sigma / sqrt(pi)` for a Gaussian. `None` when no mask has an edge.
+pub fn edge_width(masks: &[(&[f32], usize, usize)]) -> Option<f32> {
+    let (mut spread, mut length) = (0.0f64, 0.0f64);
+    for &(mask, w, h) in masks {
+        if w < 3 || h < 3 || mask.len() != w * h {
+            continue;
+        }
+        let at = |i: isize, j: isize| mask[j as usize * w + i as usize].clamp(0.0, 1.0);
+        for j in 1..h as isize - 1 {
+            for i in 1..w as isize - 1 {
+                let a = f64::from(at(i, j));
+                spread += a * (1.0 - a);
+                let (gx, gy) = sobel(&at, i, j);
+                length += 0.125 * f64::from(gx.hypot(gy));
+            }
+        }
+    }
+    (length > 0.0 && spread > 0.0).then(|| (spread / length) as f32)
+}
+
+impl EdgeProfile {
+    /// The profile of masks whose edges are `width` wide ([`edge_width`]): a box when within
+    /// 15 % of a box-filtered edge's width, else the Gaussian of that width.
+    pub fn from_width(width: f32) -> EdgeProfile {
+        if !(width.is_finite() && width > BOX_EDGE_WIDTH * 1.15) {
+            EdgeProfile::Box
+        } else {
+            EdgeProfile::Gaussian {
+                sigma: width * std::f32::consts::PI.sqrt(),
+            }
+        }
+    }
+}
+
+/// The standard normal quantile: `x` with `Phi(x) = p`, `p` in `(0, 1)` (Newton's method on
+/// `erfc` from a logistic start; a few ulps in f64).
+fn normal_quantile(p: f64) -> f64 {
+    let p = p.clamp(1e-12, 1.0 - 1e-12);
+    let mut x = (p / (1.0 - p)).ln() / 1.702;
+    for _ in 0..50 {
+        let cdf = 0.5 * libm::erfc(-x / std::f64::consts::SQRT_2);
+        let pdf = (-0.5 * x * x).exp() / (2.0 * std::f64::consts::PI).sqrt();
+        if pdf <= 0.0 {
+            break;
+        }
+        let step = ((cdf - p) / pdf).clamp(-1.0, 1.0);
+        x -= step;
+        if step.abs() < 1e-12 {
+            break;
+        }
+    }
+    x
+}
+
+/// [`coverage_to_distance_with`] for box-filtered masks ([`EdgeProfile::Box`]).
+pub fn coverage_to_distance(mask: &[f32], w: usize, h: usize) -> Result<Vec<f32>> {
+    coverage_to_distance_with(mask, w, h, EdgeProfile::Box)
+}
+
 /// A coverage mask (`w x h`, row-major, values in `[0, 1]`: the fraction of each pixel the
 /// object covers) turned into `0.5 - d`, where `d` is the signed distance in pixels from each
 /// pixel's centre to the silhouette (positive outside). Interpolated bilinearly, it crosses
-/// 0.5 where that distance field crosses 0: on the edge a box-filtered mask encodes. The
+/// 0.5 where that distance field crosses 0: on the edge the mask encodes under `profile`. The
 /// coverage itself, interpolated between pixel centres, misses that edge by up to about a
 /// tenth of a pixel (the line between a covered pixel's value and a partly covered one's is
 /// not the coverage's profile across the edge), inward or outward by where the edge falls in
 /// the pixel, and the intersection of the views' cones keeps every view's inward miss. Binary
-/// masks keep their edge on the pixel boundary. Partly covered pixels get the distance of a
-/// straight edge with the coverage's Sobel gradient as its normal; binary pixels beside a
-/// pixel of the other side half a pixel; the rest the nearest of those plus the chamfer
-/// distance to it (two raster passes, steps 1 and sqrt 2, each side from its own side).
-/// Errors on a size that is not `w * h` or a value that is not finite.
-pub fn coverage_to_distance(mask: &[f32], w: usize, h: usize) -> Result<Vec<f32>> {
+/// masks keep their edge on the pixel boundary. Partly covered pixels get the distance the
+/// profile gives their value (a box: a straight edge with the coverage's Sobel gradient as its
+/// normal); binary pixels beside a pixel of the other side half a pixel; the rest the nearest
+/// of those plus the chamfer distance to it (two raster passes, steps 1 and sqrt 2, each side
+/// from its own side). Errors on a size that is not `w * h`, a value that is not finite or a
+/// Gaussian profile whose width is not a positive number.
+pub fn coverage_to_distance_with(
+    mask: &[f32],
+    w: usize,
+    h: usize,
+    profile: EdgeProfile,
+) -> Result<Vec<f32>> {
+    if let EdgeProfile::Gaussian { sigma } = profile
+        && !(sigma.is_finite() && sigma > 0.0)
+    {
+        return Err(EvalError::InvalidArgument(format!(
+            "an edge profile's width must be a positive number of pixels, got {sigma}"
+        )));
+    }
     if w == 0 || h == 0 || mask.len() != w * h {
         return Err(EvalError::size("coverage mask", w * h, mask.len()));
     }
@@ -102,15 +211,13 @@ pub fn coverage_to_distance(mask: &[f32], w: usize, h: usize) -> Result<Vec<f32>
                 f32::INFINITY
             };
             if !binary(a) {
-                let gx = at(i + 1, j - 1) + 2.0 * at(i + 1, j) + at(i + 1, j + 1)
-                    - at(i - 1, j - 1)
-                    - 2.0 * at(i - 1, j)
-                    - at(i - 1, j + 1);
-                let gy = at(i - 1, j + 1) + 2.0 * at(i, j + 1) + at(i + 1, j + 1)
-                    - at(i - 1, j - 1)
-                    - 2.0 * at(i, j - 1)
-                    - at(i + 1, j - 1);
-                d[k] = edge_distance(gx, gy, a);
+                let (gx, gy) = sobel(&at, i, j);
+                d[k] = match profile {
+                    EdgeProfile::Box => edge_distance(gx, gy, a),
+                    EdgeProfile::Gaussian { sigma } => {
+                        (-f64::from(sigma) * normal_quantile(f64::from(a))) as f32
+                    }
+                };
                 seed[k] = true;
             } else {
                 let across = [(1, 0), (-1, 0), (0, 1), (0, -1)].iter().any(|(di, dj)| {
@@ -459,6 +566,21 @@ mod coverage_tests {
         0.5 * (lo + hi)
     }
 
+    /// How far the bilinear image's 0.5 crossing lies from the circle of radius `r` about `c`,
+    /// along 360 rays from `c`: the mean (negative: inside) and the largest magnitude.
+    fn disc_misses(img: &[f32], w: usize, c: Vec2, r: f32) -> (f32, f32) {
+        let n = 360;
+        let (mut mean, mut worst) = (0.0f32, 0.0f32);
+        for k in 0..n {
+            let a = k as f32 / n as f32 * std::f32::consts::TAU;
+            let dir = Vec2::new(a.cos(), a.sin());
+            let e = crossing(img, w, c, dir, (r - 3.0, r + 3.0)) - r;
+            mean += e / n as f32;
+            worst = worst.max(e.abs());
+        }
+        (mean, worst)
+    }
+
     #[test]
     fn the_distance_field_finds_the_edge_the_coverage_misses() {
         let w = 32;
@@ -466,19 +588,8 @@ mod coverage_tests {
         let r = 7.3;
         let cov = coverage(w, |p| p.distance(c) < r);
         let dist = coverage_to_distance(&cov, w, w).unwrap();
-        let (mut e_cov, mut e_dist, mut worst_cov, mut worst_dist) =
-            (0.0f32, 0.0f32, 0.0f32, 0.0f32);
-        let n = 360;
-        for k in 0..n {
-            let a = k as f32 / n as f32 * std::f32::consts::TAU;
-            let dir = Vec2::new(a.cos(), a.sin());
-            let ec = crossing(&cov, w, c, dir, (r - 3.0, r + 3.0)) - r;
-            let ed = crossing(&dist, w, c, dir, (r - 3.0, r + 3.0)) - r;
-            e_cov += ec / n as f32;
-            e_dist += ed / n as f32;
-            worst_cov = worst_cov.max(ec.abs());
-            worst_dist = worst_dist.max(ed.abs());
-        }
+        let (e_cov, worst_cov) = disc_misses(&cov, w, c, r);
+        let (e_dist, worst_dist) = disc_misses(&dist, w, c, r);
         // The coverage misses the circle by up to a tenth of a pixel, the distance field by
         // under half that; both lie about 0.016 inside on average (the edge's curvature).
         assert!(worst_cov > 0.08, "{worst_cov}");
@@ -516,6 +627,74 @@ mod coverage_tests {
         }
         assert!(worst_cov > 0.05, "{worst_cov}");
         assert!(worst_dist < 0.02, "{worst_dist} vs {worst_cov}");
+    }
+
+    /// The region `inside` filtered by a Gaussian of `sigma` pixels (truncated at 3 sigma,
+    /// 1/16-pixel samples), as a renderer with a smooth pixel filter gives it.
+    fn filtered(w: usize, sigma: f32, inside: impl Fn(Vec2) -> bool) -> Vec<f32> {
+        let n = (6.0 * sigma * 16.0).ceil() as i32;
+        (0..w * w)
+            .map(|k| {
+                let centre = Vec2::new((k % w) as f32 + 0.5, (k / w) as f32 + 0.5);
+                let (mut hit, mut all) = (0.0f64, 0.0f64);
+                for sj in 0..n {
+                    for si in 0..n {
+                        let o = (Vec2::new(si as f32, sj as f32) + 0.5) / 16.0 - 3.0 * sigma;
+                        let wgt = f64::from((-0.5 * o.length_squared() / (sigma * sigma)).exp());
+                        all += wgt;
+                        if inside(centre + o) {
+                            hit += wgt;
+                        }
+                    }
+                }
+                (hit / all) as f32
+            })
+            .collect()
+    }
+
+    #[test]
+    fn smooth_filtered_masks_are_measured_and_read_with_their_profile() {
+        let w = 32;
+        let c = Vec2::new(15.37, 16.21);
+        let r = 9.6;
+        let sigma = 0.42;
+        let smooth = filtered(w, sigma, |p| p.distance(c) < r);
+        let boxed = coverage(w, |p| p.distance(c) < r);
+        // The width statistic: sigma / sqrt(pi) for the Gaussian, a box's 1/6 for the box.
+        let width = edge_width(&[(&smooth, w, w)]).unwrap();
+        let EdgeProfile::Gaussian { sigma: found } = EdgeProfile::from_width(width) else {
+            panic!("a Gaussian filter read as a box (width {width})");
+        };
+        assert!((found - sigma).abs() < 0.03, "{found} vs {sigma}");
+        let box_width = edge_width(&[(&boxed, w, w)]).unwrap();
+        assert!((box_width - BOX_EDGE_WIDTH).abs() < 0.02, "{box_width}");
+        assert_eq!(EdgeProfile::from_width(box_width), EdgeProfile::Box);
+        // Read as a box, the smooth mask's edge is missed; read with its profile, found.
+        let as_box = coverage_to_distance(&smooth, w, w).unwrap();
+        let as_measured =
+            coverage_to_distance_with(&smooth, w, w, EdgeProfile::from_width(width)).unwrap();
+        let (_, worst_box) = disc_misses(&as_box, w, c, r);
+        let (mean_measured, worst_measured) = disc_misses(&as_measured, w, c, r);
+        assert!(worst_box > 0.05, "{worst_box}");
+        assert!(
+            worst_measured < 0.5 * worst_box,
+            "{worst_measured} vs {worst_box}"
+        );
+        assert!(mean_measured.abs() < 0.02, "{mean_measured}");
+        // A width that is no number of pixels is refused.
+        let bad = EdgeProfile::Gaussian { sigma: f32::NAN };
+        let e = coverage_to_distance_with(&smooth, w, w, bad).unwrap_err();
+        assert!(e.to_string().contains("width"), "{e}");
+    }
+
+    #[test]
+    fn the_normal_quantile_inverts_the_distribution() {
+        for p in [1e-6, 0.01, 0.2, 0.5, 0.7, 0.99, 1.0 - 1e-6] {
+            let x = normal_quantile(p);
+            let back = 0.5 * libm::erfc(-x / std::f64::consts::SQRT_2);
+            assert!((back - p).abs() < 1e-9 * p.max(1e-3), "{p}: {x} -> {back}");
+        }
+        assert!(normal_quantile(0.5).abs() < 1e-12);
     }
 
     #[test]

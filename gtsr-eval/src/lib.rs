@@ -35,7 +35,10 @@ pub use extraction::{
     DepthGeometry, EdgeHull, Fusion, FusionInputs, FusionView, MasksAlone, MeshConfig,
     extract_mesh, prepare_depth,
 };
-pub use hull::{coverage_to_distance, masks_mesh, visual_hull};
+pub use hull::{
+    EdgeProfile, coverage_to_distance, coverage_to_distance_with, edge_width, masks_mesh,
+    visual_hull,
+};
 pub use marching::{Grid, marching_cubes};
 pub use mesh::{largest_component, sample_surface, weld};
 pub use metrics::{

@@ -50,13 +50,20 @@ fn trains_a_tiny_scene_and_writes_every_output() {
         &out,
         &[
             &TINY_RUN[..],
-            &["--eval-points", "2", "--checkpoint-every", "0"],
+            &[
+                "--eval-points",
+                "2",
+                "--checkpoint-every",
+                "0",
+                "--shading-anchor",
+                "0.5",
+            ],
         ]
         .concat(),
     );
     assert!(o.status.success(), "{}", text(&o));
-    // The scene is lit from the camera and masked: by default the final mesh is refined by its
-    // shading.
+    // The scene is lit from the camera and masked: with an anchor the final mesh is refined by
+    // its shading.
     assert!(
         text(&o).contains("shading refinement: normals solved on"),
         "{}",
