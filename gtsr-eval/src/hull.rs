@@ -118,6 +118,15 @@ pub fn edge_width(masks: &[(&[f32], usize, usize)]) -> Option<f32> {
     (length > 0.0 && spread > 0.0).then(|| (spread / length) as f32)
 }
 
+impl std::fmt::Display for EdgeProfile {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            EdgeProfile::Box => write!(f, "box-filtered"),
+            EdgeProfile::Gaussian { sigma } => write!(f, "a filter of {sigma:.3} px"),
+        }
+    }
+}
+
 impl EdgeProfile {
     /// The profile of masks whose edges are `width` wide ([`edge_width`]): a box when within
     /// 15 % of a box-filtered edge's width, else the Gaussian of that width.
@@ -211,9 +220,11 @@ pub fn coverage_to_distance_with(
                 f32::INFINITY
             };
             if !binary(a) {
-                let (gx, gy) = sobel(&at, i, j);
                 d[k] = match profile {
-                    EdgeProfile::Box => edge_distance(gx, gy, a),
+                    EdgeProfile::Box => {
+                        let (gx, gy) = sobel(&at, i, j);
+                        edge_distance(gx, gy, a)
+                    }
                     EdgeProfile::Gaussian { sigma } => {
                         (-f64::from(sigma) * normal_quantile(f64::from(a))) as f32
                     }

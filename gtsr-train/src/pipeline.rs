@@ -276,14 +276,15 @@ fn fusion_views(
 /// With a mask on every training view: the masks at the dataset's own resolution (loaded again
 /// when training downscales), their mesh and, with `shading`, the views' linear radiance at
 /// that size (for the shading refinement), and with `edge_hull` the hull of their edges that
-/// bounds the extraction, read with that profile or the measured one
+/// bounds the extraction, read with `profile` or, without one, the measured profile
 /// ([`gtsr_eval::MasksAlone::with_edge_profile`]); `None` otherwise.
 fn native_masks(
     data_dir: &Path,
     opts: &LoadOptions,
     scene: &Scene,
     shading: bool,
-    edge_hull: Option<Option<gtsr_eval::EdgeProfile>>,
+    edge_hull: bool,
+    profile: Option<gtsr_eval::EdgeProfile>,
 ) -> Result<Option<gtsr_eval::MasksAlone>> {
     if scene.train.iter().any(|v| v.mask.is_none()) {
         return Ok(None);
@@ -346,27 +347,21 @@ fn native_masks(
         masks.voxel,
         t0.elapsed().as_secs_f64()
     );
-    if let Some(profile) = edge_hull {
+    if edge_hull {
         let t0 = Instant::now();
         masks = masks
             .with_edge_profile(profile)
             .with_context(|| format!("the masks' edges of {}", data_dir.display()))?;
-        let (profile, width) = masks
-            .edge_hull
-            .as_ref()
-            .map_or((gtsr_eval::EdgeProfile::Box, 0.0), |e| (e.profile, e.width));
-        let read = match profile {
-            gtsr_eval::EdgeProfile::Box => "box-filtered".to_string(),
-            gtsr_eval::EdgeProfile::Gaussian { sigma } => {
-                format!("a filter of {sigma:.3} px")
-            }
-        };
-        println!(
-            "hull of the masks' edges (edge width {width:.4} px, read as {read}): {} triangles \
-             ({:.1} s)",
-            masks.bound_mesh().triangles.len(),
-            t0.elapsed().as_secs_f64()
-        );
+        if let Some(e) = &masks.edge_hull {
+            println!(
+                "hull of the masks' edges (edge width {:.4} px, read as {}): {} triangles \
+                 ({:.1} s)",
+                e.width,
+                e.profile,
+                e.mesh.triangles.len(),
+                t0.elapsed().as_secs_f64()
+            );
+        }
     }
     Ok(Some(masks))
 }
@@ -619,9 +614,15 @@ pub fn run(args: &Args) -> Result<Outcome> {
     if mesh_config.shading_anchor > 0.0 && !shading {
         println!("shading refinement: off (the light is not known to be at the camera)");
     }
-    let edge_hull = (mesh_config.edge_hull && mesh_config.fusion == gtsr_eval::Fusion::Carve)
-        .then_some(mesh_config.edge_profile());
-    let masks = native_masks(&data_dir, &opts, &scene, shading, edge_hull)?;
+    let edge_hull = mesh_config.edge_hull && mesh_config.fusion == gtsr_eval::Fusion::Carve;
+    let masks = native_masks(
+        &data_dir,
+        &opts,
+        &scene,
+        shading,
+        edge_hull,
+        mesh_config.edge_profile(),
+    )?;
     let mesh_settings = MeshSettings {
         fusion_views: fusion_views(mesh_config.mesh_resolution, &data_dir, &opts, &scene)?,
         config: mesh_config,
