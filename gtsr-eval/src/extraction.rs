@@ -164,6 +164,12 @@ pub struct MeshConfig {
     /// least-squares normals).
     #[arg(skip = true)]
     pub shading_shrink: bool,
+    /// Carving, with the shading refinement: hold each vertex in proportion to its slack on
+    /// the masks' hull ([`crate::hull_slack`]): its anchor is
+    /// [`MeshConfig::shading_anchor`] times `min(1, slack / shading_slack)`, both in
+    /// footprints (0: one anchor for every vertex).
+    #[arg(skip)]
+    pub shading_slack: f32,
     /// Carving: the grid spacing (scene units). Default: 0.75 of the masks' pixel footprint
     /// at the object, at the dataset's resolution.
     #[arg(long = "carve-voxel", id = "mesh.carve_voxel", value_name = "SIZE", value_parser = parse_positive)]
@@ -238,6 +244,7 @@ impl Default for MeshConfig {
             shading_depth: 0.0,
             shading_depth_threshold: DEFAULT_SHADING_DEPTH_THRESHOLD,
             shading_shrink: true,
+            shading_slack: 0.0,
             carve_voxel: None,
             voxel: None,
             truncation: None,
@@ -343,6 +350,7 @@ impl MeshConfig {
             ("shading_anchor", self.shading_anchor),
             ("shading_depth", self.shading_depth),
             ("shading_depth_threshold", self.shading_depth_threshold),
+            ("shading_slack", self.shading_slack),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(format!(
@@ -713,15 +721,7 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
                 length: config.shading_depth,
                 threshold: config.shading_depth_threshold,
             });
-            mesh = shading_refined(
-                mesh,
-                masks,
-                radiance,
-                depth,
-                config.shading_anchor,
-                config.shading_shrink,
-                &mut notes,
-            )?;
+            mesh = shading_refined(mesh, masks, radiance, depth, config, &mut notes)?;
         }
         return Ok((mesh, notes));
     }
@@ -809,18 +809,20 @@ struct DepthFrom<'a> {
     threshold: f32,
 }
 
-/// `mesh` refined by the shading of the masks' views ([`refine_by_shading`]) and, with
-/// `depth`, by the offsets its depth maps observe; the anchor, the outward bound and the
-/// depth's length and threshold in the masks' pixel footprints at the mesh's centre.
+/// `mesh` refined by the shading of the masks' views ([`refine_by_shading`]) with the settings
+/// of `config` ([`MeshConfig::shading_anchor`], `shading_shrink`, `shading_slack`) and, with
+/// `depth`, by the offsets its depth maps observe; the anchor, the slack's reference, the
+/// outward bound and the depth's length and threshold in the masks' pixel footprints at the
+/// mesh's centre.
 fn shading_refined(
     mesh: TriMesh,
     masks: &MasksAlone,
     radiance: &[Vec<f32>],
     depth: Option<DepthFrom<'_>>,
-    anchor: f32,
-    shrink: bool,
+    config: &MeshConfig,
     notes: &mut Vec<String>,
 ) -> Result<TriMesh> {
+    let (anchor, slack) = (config.shading_anchor, config.shading_slack);
     let t0 = std::time::Instant::now();
     let (lo, hi) = mesh.bounds();
     let cameras: Vec<Camera> = masks.views.iter().map(|(c, _)| *c).collect();
@@ -839,8 +841,9 @@ fn shading_refined(
     let settings = ShadingRefinement {
         anchor: anchor * footprint,
         max_outward: SHADING_MAX_OUTWARD * footprint,
+        slack_reference: (slack > 0.0).then_some(slack * footprint),
         shading: ShadingSettings {
-            shrink,
+            shrink: config.shading_shrink,
             ..defaults.shading
         },
         ..defaults
@@ -892,6 +895,21 @@ fn shading_refined(
     let refined = refine_by_shading(&mesh, &images, targets.as_ref(), &settings)?;
     let moved = refined.moves.iter().map(|d| f64::from(*d)).sum::<f64>()
         / refined.moves.len().max(1) as f64;
+    if let Some(s) = &refined.slack
+        && !s.is_empty()
+    {
+        let mut s: Vec<f32> = s.iter().map(|v| v / footprint).collect();
+        s.sort_by(f32::total_cmp);
+        let q = |p: f64| s[((s.len() - 1) as f64 * p) as usize];
+        notes.push(format!(
+            "shading refinement: the vertices' slack on the masks' hull, quantiles \
+             0.1/0.5/0.9/0.99 {:.2}/{:.2}/{:.2}/{:.2} footprints (the anchor is whole from {slack})",
+            q(0.1),
+            q(0.5),
+            q(0.9),
+            q(0.99)
+        ));
+    }
     notes.push(format!(
         "shading refinement: normals solved on {} of {} faces (mean share kept {:.3}), \
          interreflection constant {:.4}, anchor {:.4}, mean move {:+.5} ({:.1} s)",
@@ -995,6 +1013,13 @@ mod tests {
                     ..Default::default()
                 },
                 "mesh.shading_anchor",
+            ),
+            (
+                MeshConfig {
+                    shading_slack: f32::NAN,
+                    ..Default::default()
+                },
+                "mesh.shading_slack",
             ),
             (
                 MeshConfig {

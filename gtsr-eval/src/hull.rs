@@ -377,6 +377,81 @@ pub fn silhouette_distance(views: &[(Camera, &[f32])], p: Vec3) -> Option<f32> {
     (field > f32::NEG_INFINITY).then_some(field)
 }
 
+/// Per point on the masks' hull, its slack: how far the hull could lie from the object there,
+/// whatever the object's shape. The view whose mask is lowest at the point bounds the hull
+/// there, and its ray through the point grazes the object at some point the hull holds; the
+/// slack is the distance from the point to the farther end of the stretch of that ray inside
+/// every other view's mask (`mask >= 0.5`), searched in steps of `step` up to `max_len` in
+/// each direction (scene units). Where the hull hugs a convex part it is a fraction of the
+/// part's radius; over a concavity the masks cannot see it is the concavity's width. Points
+/// no view sees get `max_len`.
+pub fn hull_slack(
+    views: &[(Camera, &[f32])],
+    points: &[Vec3],
+    step: f32,
+    max_len: f32,
+) -> Result<Vec<f32>> {
+    if !(step.is_finite() && step > 0.0 && max_len.is_finite() && max_len >= step) {
+        return Err(EvalError::InvalidArgument(format!(
+            "hull slack: the step must be positive and at most the length (got {step}, {max_len})"
+        )));
+    }
+    for (cam, mask) in views {
+        if mask.len() != cam.width as usize * cam.height as usize {
+            return Err(EvalError::InvalidArgument(format!(
+                "hull slack: a mask of {} values for a {}x{} camera",
+                mask.len(),
+                cam.width,
+                cam.height
+            )));
+        }
+    }
+    let mask_at = |k: usize, p: Vec3| -> Option<f32> {
+        let (cam, mask) = &views[k];
+        let (uv, _) = in_image(cam, p)?;
+        Some(bilinear(
+            mask,
+            cam.width as usize,
+            cam.height as usize,
+            uv.x,
+            uv.y,
+        ))
+    };
+    let steps = (max_len / step).floor() as usize;
+    use rayon::prelude::*;
+    Ok(points
+        .par_iter()
+        .map(|&p| {
+            // The bounding view: the lowest mask at `p`.
+            let Some((g, _)) = (0..views.len())
+                .filter_map(|k| mask_at(k, p).map(|m| (k, m)))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+            else {
+                return max_len;
+            };
+            let dir = (p - views[g].0.centre()).normalize_or_zero();
+            let inside = |q: Vec3| {
+                (0..views.len())
+                    .filter(|k| *k != g)
+                    .all(|k| mask_at(k, q).is_none_or(|m| m >= 0.5))
+            };
+            let mut slack = 0.0f32;
+            for sign in [1.0f32, -1.0] {
+                let mut run = 0.0f32;
+                for i in 1..=steps {
+                    let t = i as f32 * step;
+                    if !inside(p + dir * (sign * t)) {
+                        break;
+                    }
+                    run = t;
+                }
+                slack = slack.max(run);
+            }
+            slack
+        })
+        .collect())
+}
+
 /// Pixel footprints of the masks (at the mesh box's centre, median over the views) in a voxel
 /// of [`masks_mesh`]: finer than a pixel, so that the bilinear masks' sub-pixel crossing
 /// survives marching cubes.
@@ -406,11 +481,7 @@ pub fn masks_mesh(views: &[(Camera, &[f32])], voxel: Option<f32>) -> Result<Opti
     };
     let voxel = voxel.unwrap_or_else(|| masks_voxel(views, lo, hi));
     let grid = masks_grid(views, lo, hi, voxel)?;
-    let level: f32 = std::env::var("GTSR_MASKS_LEVEL")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(0.0);
-    let mesh = crate::mesh::largest_component(&marching_cubes(&grid, level));
+    let mesh = crate::mesh::largest_component(&marching_cubes(&grid, 0.0));
     Ok((!mesh.triangles.is_empty()).then_some(mesh))
 }
 

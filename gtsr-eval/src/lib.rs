@@ -36,8 +36,8 @@ pub use extraction::{
     extract_mesh, prepare_depth,
 };
 pub use hull::{
-    EdgeProfile, coverage_to_distance, coverage_to_distance_with, edge_width, masks_mesh,
-    visual_hull,
+    EdgeProfile, coverage_to_distance, coverage_to_distance_with, edge_width, hull_slack,
+    masks_mesh, visual_hull,
 };
 pub use marching::{Grid, marching_cubes};
 pub use mesh::{largest_component, sample_surface, weld};

@@ -28,7 +28,7 @@ use gtsr_data::ply::TriMesh;
 
 use crate::error::{EvalError, Result};
 use crate::mesh::{face_centroid, face_normal_scaled};
-use crate::refine::{DepthTargets, FaceNormals, RefineSettings, refine, visible_faces};
+use crate::refine::{DepthTargets, FaceNormals, RefineSettings, refine_anchored, visible_faces};
 
 /// One view for [`shading_normals`].
 pub struct ShadingView<'a> {
@@ -722,6 +722,14 @@ pub struct ShadingImage<'a> {
     pub mask: Option<&'a [f32]>,
 }
 
+/// Steps per [`ShadingRefinement::slack_reference`] in the search for a vertex's slack.
+const SLACK_STEPS: usize = 32;
+/// The shortest anchor the slack gives a vertex, as a share of the anchor (a vertex the
+/// hull holds exactly still has a positive anchor length).
+const SLACK_FLOOR: f32 = 1e-3;
+/// The power of the slack in the anchor length.
+const SLACK_POWER: i32 = 4;
+
 /// Settings of [`refine_by_shading`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ShadingRefinement {
@@ -735,6 +743,12 @@ pub struct ShadingRefinement {
     pub max_outward: f32,
     /// Rays cast per face for the surroundings the interreflection reads.
     pub surrounding_rays: usize,
+    /// Hold each vertex by its slack on the hull of the images' masks
+    /// ([`crate::hull_slack`]): the anchor length is [`ShadingRefinement::anchor`] times
+    /// `min(1, slack / reference)`, so that only where the masks leave room (over a concavity
+    /// they cannot see) the normals move the mesh far; scene units (`None`: one anchor for
+    /// all). Needs the images' masks.
+    pub slack_reference: Option<f32>,
 }
 
 impl Default for ShadingRefinement {
@@ -748,6 +762,7 @@ impl Default for ShadingRefinement {
             anchor: 0.01,
             max_outward: 0.0,
             surrounding_rays: 32,
+            slack_reference: None,
         }
     }
 }
@@ -765,6 +780,9 @@ pub struct ShadingRefined {
     pub interreflection: f32,
     /// The mean share of the solved faces' corrections kept ([`ShadingFit::confidence`]).
     pub confidence: f32,
+    /// Per vertex, its slack on the masks' hull (scene units, at most the reference) when
+    /// [`ShadingRefinement::slack_reference`] is set.
+    pub slack: Option<Vec<f32>>,
 }
 
 /// Refines `mesh` (a mesh around the object, such as the masks') by the normals its faces'
@@ -783,14 +801,42 @@ pub fn refine_by_shading(
         && settings.anchor > 0.0
         && settings.max_outward.is_finite()
         && settings.max_outward >= 0.0
-        && settings.surrounding_rays > 0;
+        && settings.surrounding_rays > 0
+        && settings
+            .slack_reference
+            .is_none_or(|r| r.is_finite() && r > 0.0);
     if !valid {
         return Err(EvalError::InvalidArgument(format!(
-            "shading refinement: the anchor must be positive, the outward bound non-negative \
-             and at least one surrounding ray cast (got {}, {}, {})",
-            settings.anchor, settings.max_outward, settings.surrounding_rays
+            "shading refinement: the anchor and the slack's reference must be positive, the \
+             outward bound non-negative and at least one surrounding ray cast (got {}, {:?}, \
+             {}, {})",
+            settings.anchor,
+            settings.slack_reference,
+            settings.max_outward,
+            settings.surrounding_rays
         )));
     }
+    let slack = match settings.slack_reference {
+        Some(reference) => {
+            let masks: Vec<(Camera, &[f32])> = images
+                .iter()
+                .filter_map(|v| v.mask.map(|m| (*v.camera, m)))
+                .collect();
+            if masks.is_empty() {
+                return Err(EvalError::InvalidArgument(
+                    "shading refinement: holding the vertices by their slack needs the masks"
+                        .into(),
+                ));
+            }
+            Some(crate::hull_slack(
+                &masks,
+                &mesh.positions,
+                reference / SLACK_STEPS as f32,
+                reference,
+            )?)
+        }
+        None => None,
+    };
     let caster = crate::MeshRaycaster::new(mesh, "the mesh to refine")?;
     let depths: Vec<Vec<f32>> = images
         .iter()
@@ -816,13 +862,29 @@ pub fn refine_by_shading(
         max_outward: settings.max_outward,
         ..RefineSettings::default()
     };
-    let (refined, moves) = refine(mesh, &fit.normals, depth, &refine_settings)?;
+    // The anchor's weight goes as one over its length squared.
+    let scale: Option<Vec<f32>> = slack.as_ref().zip(settings.slack_reference).map(|(s, r)| {
+        s.iter()
+            .map(|s| {
+                let m = (s / r).min(1.0).powi(SLACK_POWER).max(SLACK_FLOOR);
+                1.0 / (m * m)
+            })
+            .collect()
+    });
+    let (refined, moves) = refine_anchored(
+        mesh,
+        &fit.normals,
+        depth,
+        &refine_settings,
+        scale.as_deref(),
+    )?;
     Ok(ShadingRefined {
         mesh: refined,
         moves,
         solved: fit.solved(),
         interreflection: fit.interreflection,
         confidence: fit.mean_confidence(),
+        slack,
     })
 }
 
@@ -1201,6 +1263,28 @@ mod tests {
             .collect();
         let refined = refine_by_shading(&lid, &images, None, settings).unwrap();
         (lid, refined)
+    }
+
+    /// Holding the vertices by their slack needs a positive reference and the masks.
+    #[test]
+    fn the_slack_needs_masks_and_a_positive_reference() {
+        let mesh = square();
+        let cam = Camera::look_at(1.5 * Vec3::Z, Vec3::ZERO, Vec3::Y, 0.35, 8, 8);
+        let rad = vec![0.5f32; 64];
+        let images = [ShadingImage {
+            camera: &cam,
+            radiance: &rad,
+            mask: None,
+        }];
+        let with = |slack_reference| ShadingRefinement {
+            slack_reference,
+            ..ShadingRefinement::default()
+        };
+        for r in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+            assert!(refine_by_shading(&mesh, &images, None, &with(Some(r))).is_err());
+        }
+        let err = refine_by_shading(&mesh, &images, None, &with(Some(0.1))).unwrap_err();
+        assert!(err.to_string().contains("masks"), "{err}");
     }
 
     /// A bowl the silhouettes cannot see, under a lid: the lid refined by the shading of the

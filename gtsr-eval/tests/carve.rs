@@ -8,7 +8,7 @@ use glam::Vec3;
 use gtsr_data::Camera;
 use gtsr_eval::hull::{masks_grid, silhouette_distance};
 use gtsr_eval::{
-    CarveSettings, DepthMap, MeshRaycaster, carve_grid, carve_mesh, masks_mesh,
+    CarveSettings, DepthMap, MeshRaycaster, carve_grid, carve_mesh, hull_slack, masks_mesh,
     score_against_ground_truth,
 };
 
@@ -594,4 +594,50 @@ fn the_concavity_gate_carves_the_pit_and_leaves_the_faces_to_the_masks() {
         .filter(|(a, b)| (**a > 0.0) != (**b > 0.0))
         .count();
     assert_eq!(changed, 0, "the hull's own depth changed {changed} points");
+}
+
+#[test]
+fn the_hull_slack_bounds_how_far_the_hull_lies_from_the_object() {
+    let s = scene();
+    let masks = mask_views(&s);
+    let hull = masks_mesh(&masks, Some(VOXEL)).unwrap().expect("a hull");
+    let footprint = 4.0 / s.cams[0].fx;
+    let slack = hull_slack(&masks, &hull.positions, 0.25 * footprint, 1.5).unwrap();
+    // The bound: the object lies within the slack of every point of the hull (up to the
+    // masks' pixel and the search's step).
+    let mut worst = f32::NEG_INFINITY;
+    for (p, s) in hull.positions.iter().zip(&slack) {
+        worst = worst.max(sdf(*p).abs() - s);
+    }
+    assert!(
+        worst < 2.0 * footprint,
+        "the object lies {worst} beyond a slack"
+    );
+    // Over the pit, which no silhouette shows, the slack is at least the pit's radius (so it
+    // is on the cube's flat faces, which the grazing rays run along).
+    let mut lid = f32::INFINITY;
+    for (p, s) in hull.positions.iter().zip(&slack) {
+        if p.x * p.x + p.z * p.z < 0.05 * 0.05 && p.y > HALF - 0.02 {
+            lid = lid.min(*s);
+        }
+    }
+    assert!(lid >= PIT_RADIUS - footprint, "slack over the pit {lid}");
+    // A sphere's hull is held everywhere.
+    let spheres = common::sphere_masks(&s.cams, Vec3::ZERO, 0.4);
+    let views = common::as_views(&spheres);
+    let ball = masks_mesh(&views, Some(VOXEL)).unwrap().expect("a hull");
+    let slack = hull_slack(&views, &ball.positions, 0.25 * footprint, 1.5).unwrap();
+    let mut sorted = slack.clone();
+    sorted.sort_by(f32::total_cmp);
+    let (median, most) = (sorted[sorted.len() / 2], sorted[sorted.len() - 1]);
+    eprintln!("slack on the sphere: median {median}, most {most}; over the pit {lid}");
+    assert!(
+        median < 0.25 * lid && most < 0.5 * 0.4,
+        "slack on a sphere of radius 0.4: median {median}, most {most}"
+    );
+    // Bad input is refused.
+    assert!(hull_slack(&masks, &hull.positions, 0.0, 1.0).is_err());
+    assert!(hull_slack(&masks, &hull.positions, 0.1, 0.05).is_err());
+    let short = [(s.cams[0], &s.masks[0][..10])];
+    assert!(hull_slack(&short, &hull.positions, 0.01, 0.1).is_err());
 }

@@ -108,6 +108,15 @@ pub struct ShadingStereoArgs {
     /// (0: everywhere).
     #[arg(long, default_value_t = 0.0)]
     pub min_openness: f32,
+    /// Scale each vertex's anchor by its slack on the masks' hull (`gtsr_eval::hull_slack`):
+    /// the anchor length is `--anchors` times `min(1, slack / --slack-ref)` to this power
+    /// (0: the same anchor everywhere; the slack's quantiles are printed either way).
+    #[arg(long, default_value_t = 0.0)]
+    pub slack_power: f32,
+    /// With `--slack-power`: the slack (training pixel footprints) from which a vertex gets
+    /// the whole anchor.
+    #[arg(long, default_value_t = 16.0)]
+    pub slack_ref: f32,
     /// Refine with the truth's normals instead (the ceiling of the refinement; needs
     /// `mesh.ply`).
     #[arg(long)]
@@ -512,6 +521,73 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
         };
         Ok((fit, truth))
     };
+    // The hull's slack per vertex, in footprints.
+    let t_slack = std::time::Instant::now();
+    let mask_views: Vec<(Camera, &[f32])> = scene
+        .train
+        .iter()
+        .filter_map(|v| v.mask.as_deref().map(|m| (v.camera, m)))
+        .collect();
+    let slack: Vec<f32> = gtsr_eval::hull_slack(
+        &mask_views,
+        &hull.positions,
+        0.25 * footprint,
+        64.0 * footprint,
+    )?
+    .iter()
+    .map(|s| s / footprint)
+    .collect();
+    let quantiles = |v: &[f32]| -> String {
+        let mut v = v.to_vec();
+        v.sort_by(f32::total_cmp);
+        let q = |p: f64| {
+            v.get(((v.len().max(1) - 1) as f64 * p) as usize)
+                .copied()
+                .unwrap_or(f32::NAN)
+        };
+        format!(
+            "{} vertices: 0.1/0.5/0.9/0.99 {:.2}/{:.2}/{:.2}/{:.2}",
+            v.len(),
+            q(0.1),
+            q(0.5),
+            q(0.9),
+            q(0.99)
+        )
+    };
+    println!(
+        "hull slack (footprints), all {} ({:.1} s)",
+        quantiles(&slack),
+        t_slack.elapsed().as_secs_f64()
+    );
+    if let Some(gt) = &gt {
+        let sd = gtsr_eval::SignedDistance::new(gt, "ground-truth mesh")?;
+        let depth: Vec<f32> = hull
+            .positions
+            .iter()
+            .map(|p| sd.query(*p).0.abs())
+            .collect();
+        for (lo, hi) in [(0.0, 0.5), (0.5, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, 1e9)] {
+            let sel: Vec<f32> = slack
+                .iter()
+                .zip(&depth)
+                .filter(|(_, d)| (lo..hi).contains(&(**d / footprint)))
+                .map(|(s, _)| *s)
+                .collect();
+            println!(
+                "  slack where the hull lies {lo}-{hi} footprints from the truth: {}",
+                quantiles(&sel)
+            );
+        }
+    }
+    let slack_scale: Option<Vec<f32>> = (args.slack_power > 0.0).then(|| {
+        slack
+            .iter()
+            .map(|s| {
+                let m = (s / args.slack_ref).clamp(1e-3, 1.0).powf(args.slack_power);
+                1.0 / (m * m)
+            })
+            .collect()
+    });
     println!(
         "\n| anchor | round | chamfer | accuracy | completeness | hull-blind | solved faces | \
          shading normals vs truth (deg) | moves mean / most |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
@@ -665,7 +741,8 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
                 shading.clone()
             };
             let scale = (args.pin != 1.0 && args.depart_deg > 0.0)
-                .then(|| pin_scale(&hull, &departs, args.free_radius, args.pin));
+                .then(|| pin_scale(&hull, &departs, args.free_radius, args.pin))
+                .or_else(|| slack_scale.clone());
             let filtered_truth = match (&truth, args.truth_normals && args.low_pass > 0.0) {
                 (Some(t), true) => {
                     let mut t = t.clone();
