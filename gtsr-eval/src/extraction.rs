@@ -82,11 +82,15 @@ pub const DEFAULT_CARVE_MARGIN: f32 = 1.0;
 pub const DEFAULT_CONCAVITY_GATE: f32 = 3.0;
 /// The default tolerance in footprints of [`MeshConfig::cull_unobserved`].
 pub const DEFAULT_CULL_UNOBSERVED: f32 = 3.0;
-/// How far the shading refinement may move a vertex outward, in the masks' footprints.
+/// How far the shading refinement may move a vertex outward, in the masks' footprints, when
+/// one anchor holds every vertex (held by the slack it moves inward only: the object lies
+/// inside the hull).
 const SHADING_MAX_OUTWARD: f32 = 0.25;
-/// The default of [`MeshConfig::shading_anchor`], footprints: off. On the edge hull the
-/// shading normals' errors cost more than they correct.
-pub const DEFAULT_SHADING_ANCHOR: f32 = 0.0;
+/// The default of [`MeshConfig::shading_anchor`], footprints: long, for the vertices whose
+/// slack on the masks' hull reaches [`DEFAULT_SHADING_SLACK`] (the others are held by it).
+pub const DEFAULT_SHADING_ANCHOR: f32 = 100.0;
+/// The default of [`MeshConfig::shading_slack`], footprints.
+pub const DEFAULT_SHADING_SLACK: f32 = 4.0;
 /// The default of [`MeshConfig::shading_depth_threshold`], footprints.
 pub const DEFAULT_SHADING_DEPTH_THRESHOLD: f32 = 0.25;
 /// [`MeshConfig::shading_depth`]: the depth's offsets count on faces at least this many views
@@ -143,9 +147,11 @@ pub struct MeshConfig {
     /// Carving: then refine the mesh by the normals the training images' shading explains
     /// under a light at the camera (the paper's capture), with the light the object sends
     /// itself modelled and each normal shrunk towards the mesh's own by its uncertainty; each
-    /// vertex moves along its normal, held to where it was over this many of the masks' pixel
-    /// footprints (0: off, the default). Only where the light is at the camera (the PBR
-    /// component's decision); the final mesh only, not the evaluations during training.
+    /// vertex moves inward along its normal, held to where it was over this many of the masks'
+    /// pixel footprints where its slack on the masks' hull reaches `--shading-slack`, and over
+    /// `(slack / shading-slack)^4` of that where it is smaller (0: off). Only where the light
+    /// is at the camera (the PBR component's decision); the final mesh only, not the
+    /// evaluations during training.
     #[arg(long = "shading-anchor", id = "mesh.shading_anchor", value_name = "FOOTPRINTS",
           default_value_t = DEFAULT_SHADING_ANCHOR, value_parser = parse_non_negative)]
     pub shading_anchor: f32,
@@ -164,11 +170,13 @@ pub struct MeshConfig {
     /// least-squares normals).
     #[arg(skip = true)]
     pub shading_shrink: bool,
-    /// Carving, with the shading refinement: hold each vertex in proportion to its slack on
-    /// the masks' hull ([`crate::hull_slack`]): its anchor is
-    /// [`MeshConfig::shading_anchor`] times `min(1, slack / shading_slack)`, both in
-    /// footprints (0: one anchor for every vertex).
-    #[arg(skip)]
+    /// Carving, with the shading refinement: hold each vertex by its slack on the masks' hull
+    /// ([`crate::hull_slack`], an upper bound on how far the object lies from the hull
+    /// there): its anchor is `--shading-anchor` times `min(1, slack / this)^4`, in footprints,
+    /// and it moves inward only (0: one anchor for every vertex, which may also move a
+    /// quarter footprint outward; [`crate::shading::ShadingRefinement::slack_reference`]).
+    #[arg(long = "shading-slack", id = "mesh.shading_slack", value_name = "FOOTPRINTS",
+          default_value_t = DEFAULT_SHADING_SLACK, value_parser = parse_non_negative)]
     pub shading_slack: f32,
     /// Carving: the grid spacing (scene units). Default: 0.75 of the masks' pixel footprint
     /// at the object, at the dataset's resolution.
@@ -244,7 +252,7 @@ impl Default for MeshConfig {
             shading_depth: 0.0,
             shading_depth_threshold: DEFAULT_SHADING_DEPTH_THRESHOLD,
             shading_shrink: true,
-            shading_slack: 0.0,
+            shading_slack: DEFAULT_SHADING_SLACK,
             carve_voxel: None,
             voxel: None,
             truncation: None,
@@ -840,7 +848,11 @@ fn shading_refined(
     let defaults = ShadingRefinement::default();
     let settings = ShadingRefinement {
         anchor: anchor * footprint,
-        max_outward: SHADING_MAX_OUTWARD * footprint,
+        max_outward: if slack > 0.0 {
+            0.0
+        } else {
+            SHADING_MAX_OUTWARD * footprint
+        },
         slack_reference: (slack > 0.0).then_some(slack * footprint),
         shading: ShadingSettings {
             shrink: config.shading_shrink,

@@ -745,9 +745,9 @@ pub struct ShadingRefinement {
     pub surrounding_rays: usize,
     /// Hold each vertex by its slack on the hull of the images' masks
     /// ([`crate::hull_slack`]): the anchor length is [`ShadingRefinement::anchor`] times
-    /// `min(1, slack / reference)`, so that only where the masks leave room (over a concavity
-    /// they cannot see) the normals move the mesh far; scene units (`None`: one anchor for
-    /// all). Needs the images' masks.
+    /// `min(1, slack / reference)^4` (at least a thousandth of it), so that only where the
+    /// masks leave room (over a concavity they cannot see) the normals move the mesh far;
+    /// scene units (`None`: one anchor for all). Needs the images' masks.
     pub slack_reference: Option<f32>,
 }
 

@@ -50,22 +50,16 @@ fn trains_a_tiny_scene_and_writes_every_output() {
         &out,
         &[
             &TINY_RUN[..],
-            &[
-                "--eval-points",
-                "2",
-                "--checkpoint-every",
-                "0",
-                "--shading-anchor",
-                "0.5",
-            ],
+            &["--eval-points", "2", "--checkpoint-every", "0"],
         ]
         .concat(),
     );
     assert!(o.status.success(), "{}", text(&o));
-    // The scene is lit from the camera and masked: with an anchor the final mesh is refined by
-    // its shading.
+    // The scene is lit from the camera and masked: the final mesh is refined by its shading,
+    // each vertex held by its slack on the masks' hull.
     assert!(
-        text(&o).contains("shading refinement: normals solved on"),
+        text(&o).contains("shading refinement: normals solved on")
+            && text(&o).contains("the vertices' slack on the masks' hull"),
         "{}",
         text(&o)
     );

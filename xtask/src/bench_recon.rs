@@ -462,14 +462,14 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
         // The masks alone depend on the full run's grid only, not on its seed: the first one.
         if let Some(run) = &full_run {
             println!(
-                "== {name} / the full model's extraction with the shading refinement or without its depth"
+                "== {name} / the full model's extraction without the shading refinement or without its depth"
             );
             for fusion in [
                 Fusion {
-                    suffix: "shading",
-                    mesh: serde_json::json!({ "shading_anchor": 0.5 }),
-                    label: "the default extraction refined by the shading, within half a \
-                            footprint (--shading-anchor 0.5)"
+                    suffix: "no-shading",
+                    mesh: serde_json::json!({ "shading_anchor": 0.0 }),
+                    label: "the default extraction without the shading refinement \
+                            (--shading-anchor 0)"
                         .into(),
                 },
                 Fusion {

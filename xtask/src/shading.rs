@@ -583,7 +583,10 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
         slack
             .iter()
             .map(|s| {
-                let m = (s / args.slack_ref).clamp(1e-3, 1.0).powf(args.slack_power);
+                let m = (s / args.slack_ref)
+                    .min(1.0)
+                    .powf(args.slack_power)
+                    .max(1e-3);
                 1.0 / (m * m)
             })
             .collect()
