@@ -12,10 +12,15 @@
 //! a smooth pixel filter whose width [`edge_width`] measures on the masks themselves); the
 //! hull of those images ([`crate::MasksAlone::with_edge_distance`]) does not collect every
 //! view's inward miss of the edge as the hull of the interpolated masks does.
+//!
+//! [`hull_slack`] bounds, at each point of the hull, how far the object can lie from it
+//! whatever its shape: a few pixel footprints where the silhouettes hold the hull, the width of
+//! a concavity no silhouette shows.
 
 use glam::Vec3;
 use gtsr_data::Camera;
 use gtsr_data::ply::TriMesh;
+use rayon::prelude::*;
 
 use crate::error::{EvalError, Result};
 use crate::marching::{Grid, marching_cubes};
@@ -418,7 +423,6 @@ pub fn hull_slack(
         ))
     };
     let steps = (max_len / step).floor() as usize;
-    use rayon::prelude::*;
     Ok(points
         .par_iter()
         .map(|&p| {
