@@ -91,6 +91,8 @@ const SHADING_MAX_OUTWARD: f32 = 0.25;
 pub const DEFAULT_SHADING_ANCHOR: f32 = 100.0;
 /// The default of [`MeshConfig::shading_slack`], footprints.
 pub const DEFAULT_SHADING_SLACK: f32 = 4.0;
+/// The default of [`MeshConfig::shading_rounds`].
+pub const DEFAULT_SHADING_ROUNDS: usize = 3;
 /// The default of [`MeshConfig::shading_depth_threshold`], footprints.
 pub const DEFAULT_SHADING_DEPTH_THRESHOLD: f32 = 0.25;
 /// [`MeshConfig::shading_depth`]: the depth's offsets count on faces at least this many views
@@ -178,6 +180,11 @@ pub struct MeshConfig {
     #[arg(long = "shading-slack", id = "mesh.shading_slack", value_name = "FOOTPRINTS",
           default_value_t = DEFAULT_SHADING_SLACK, value_parser = parse_non_negative)]
     pub shading_slack: f32,
+    /// Carving, with the shading refinement: observe-and-refine rounds, each reading the
+    /// normals on the last round's mesh, so that a sinking lid's faces are seen where they
+    /// have moved ([`crate::shading::ShadingRefinement::rounds`]; at least 1).
+    #[arg(skip = DEFAULT_SHADING_ROUNDS)]
+    pub shading_rounds: usize,
     /// Carving: the grid spacing (scene units). Default: 0.75 of the masks' pixel footprint
     /// at the object, at the dataset's resolution.
     #[arg(long = "carve-voxel", id = "mesh.carve_voxel", value_name = "SIZE", value_parser = parse_positive)]
@@ -253,6 +260,7 @@ impl Default for MeshConfig {
             shading_depth_threshold: DEFAULT_SHADING_DEPTH_THRESHOLD,
             shading_shrink: true,
             shading_slack: DEFAULT_SHADING_SLACK,
+            shading_rounds: DEFAULT_SHADING_ROUNDS,
             carve_voxel: None,
             voxel: None,
             truncation: None,
@@ -365,6 +373,9 @@ impl MeshConfig {
                     "mesh.{name} must be a finite number of footprints >= 0, got {v}"
                 ));
             }
+        }
+        if self.shading_rounds == 0 {
+            return bad("mesh.shading_rounds must be at least 1".into());
         }
         if let Some(t) = self.depth_crossing
             && !(t > 0.0 && t < 1.0)
@@ -854,6 +865,7 @@ fn shading_refined(
             SHADING_MAX_OUTWARD * footprint
         },
         slack_reference: (slack > 0.0).then_some(slack * footprint),
+        rounds: config.shading_rounds,
         shading: ShadingSettings {
             shrink: config.shading_shrink,
             ..defaults.shading
@@ -924,12 +936,13 @@ fn shading_refined(
     }
     notes.push(format!(
         "shading refinement: normals solved on {} of {} faces (mean share kept {:.3}), \
-         interreflection constant {:.4}, anchor {:.4}, mean move {:+.5} ({:.1} s)",
+         interreflection constant {:.4}, anchor {:.4}, {} round(s), mean move {:+.5} ({:.1} s)",
         refined.solved,
         mesh.triangles.len(),
         refined.confidence,
         refined.interreflection,
         settings.anchor,
+        settings.rounds,
         moved,
         t0.elapsed().as_secs_f64()
     ));
@@ -1025,6 +1038,13 @@ mod tests {
                     ..Default::default()
                 },
                 "mesh.shading_anchor",
+            ),
+            (
+                MeshConfig {
+                    shading_rounds: 0,
+                    ..Default::default()
+                },
+                "mesh.shading_rounds",
             ),
             (
                 MeshConfig {

@@ -743,6 +743,10 @@ pub struct ShadingRefinement {
     pub max_outward: f32,
     /// Rays cast per face for the surroundings the interreflection reads.
     pub surrounding_rays: usize,
+    /// Observe-and-refine rounds: each observes the normals on the last round's mesh (the
+    /// first on `mesh`) and refines `mesh` by them, so that the faces of a sunken lid are seen
+    /// where they now are (at least 1).
+    pub rounds: usize,
     /// Hold each vertex by its slack on the hull of the images' masks
     /// ([`crate::hull_slack`]): the anchor length is [`ShadingRefinement::anchor`] times
     /// `min(1, slack / reference)^4` (at least a thousandth of it), so that only where the
@@ -762,6 +766,7 @@ impl Default for ShadingRefinement {
             anchor: 0.01,
             max_outward: 0.0,
             surrounding_rays: 32,
+            rounds: 1,
             slack_reference: None,
         }
     }
@@ -802,18 +807,20 @@ pub fn refine_by_shading(
         && settings.max_outward.is_finite()
         && settings.max_outward >= 0.0
         && settings.surrounding_rays > 0
+        && settings.rounds > 0
         && settings
             .slack_reference
             .is_none_or(|r| r.is_finite() && r > 0.0);
     if !valid {
         return Err(EvalError::InvalidArgument(format!(
             "shading refinement: the anchor and the slack's reference must be positive, the \
-             outward bound non-negative and at least one surrounding ray cast (got {}, {:?}, \
-             {}, {})",
+             outward bound non-negative, at least one surrounding ray cast and one round run \
+             (got {}, {:?}, {}, {}, {})",
             settings.anchor,
             settings.slack_reference,
             settings.max_outward,
-            settings.surrounding_rays
+            settings.surrounding_rays,
+            settings.rounds
         )));
     }
     let slack = match settings.slack_reference {
@@ -837,26 +844,6 @@ pub fn refine_by_shading(
         }
         None => None,
     };
-    let caster = crate::MeshRaycaster::new(mesh, "the mesh to refine")?;
-    let depths: Vec<Vec<f32>> = images
-        .iter()
-        .map(|v| caster.render(v.camera).depth)
-        .collect();
-    let views: Vec<ShadingView<'_>> = images
-        .iter()
-        .zip(&depths)
-        .map(|(v, d)| ShadingView {
-            camera: v.camera,
-            radiance: v.radiance,
-            mask: v.mask,
-            mesh_depth: d,
-        })
-        .collect();
-    let around = settings
-        .shading
-        .interreflection
-        .then(|| surroundings_cast(mesh, &caster, settings.surrounding_rays));
-    let fit = shading_normals(mesh, &views, around.as_ref(), &settings.shading)?;
     let refine_settings = RefineSettings {
         anchor: settings.anchor,
         max_outward: settings.max_outward,
@@ -871,13 +858,41 @@ pub fn refine_by_shading(
             })
             .collect()
     });
-    let (refined, moves) = refine_anchored(
-        mesh,
-        &fit.normals,
-        depth,
-        &refine_settings,
-        scale.as_deref(),
-    )?;
+    // A round observes the normals on `on` (the last round's mesh) and refines `mesh` by them.
+    let round = |on: &TriMesh| -> Result<(TriMesh, Vec<f32>, ShadingFit)> {
+        let caster = crate::MeshRaycaster::new(on, "the mesh to refine")?;
+        let depths: Vec<Vec<f32>> = images
+            .iter()
+            .map(|v| caster.render(v.camera).depth)
+            .collect();
+        let views: Vec<ShadingView<'_>> = images
+            .iter()
+            .zip(&depths)
+            .map(|(v, d)| ShadingView {
+                camera: v.camera,
+                radiance: v.radiance,
+                mask: v.mask,
+                mesh_depth: d,
+            })
+            .collect();
+        let around = settings
+            .shading
+            .interreflection
+            .then(|| surroundings_cast(on, &caster, settings.surrounding_rays));
+        let fit = shading_normals(on, &views, around.as_ref(), &settings.shading)?;
+        let (refined, moves) = refine_anchored(
+            mesh,
+            &fit.normals,
+            depth,
+            &refine_settings,
+            scale.as_deref(),
+        )?;
+        Ok((refined, moves, fit))
+    };
+    let (mut refined, mut moves, mut fit) = round(mesh)?;
+    for _ in 1..settings.rounds {
+        (refined, moves, fit) = round(&refined)?;
+    }
     Ok(ShadingRefined {
         mesh: refined,
         moves,
