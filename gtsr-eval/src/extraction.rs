@@ -173,10 +173,10 @@ pub struct MeshConfig {
     #[arg(skip = true)]
     pub shading_shrink: bool,
     /// Carving, with the shading refinement: hold each vertex by its slack on the masks' hull
-    /// ([`crate::hull_slack`], an upper bound on how far the object lies from the hull
+    /// (`gtsr_eval::hull_slack`, an upper bound on how far the object lies from the hull
     /// there): its anchor is `--shading-anchor` times `min(1, slack / this)^4`, in footprints,
     /// and it moves inward only (0: one anchor for every vertex, which may also move a
-    /// quarter footprint outward; [`crate::shading::ShadingRefinement::slack_reference`]).
+    /// quarter footprint outward).
     #[arg(long = "shading-slack", id = "mesh.shading_slack", value_name = "FOOTPRINTS",
           default_value_t = DEFAULT_SHADING_SLACK, value_parser = parse_non_negative)]
     pub shading_slack: f32,
@@ -829,7 +829,8 @@ struct DepthFrom<'a> {
 }
 
 /// `mesh` refined by the shading of the masks' views ([`refine_by_shading`]) with the settings
-/// of `config` ([`MeshConfig::shading_anchor`], `shading_shrink`, `shading_slack`) and, with
+/// of `config` ([`MeshConfig::shading_anchor`], `shading_shrink`, `shading_slack`,
+/// `shading_rounds`) and, with
 /// `depth`, by the offsets its depth maps observe; the anchor, the slack's reference, the
 /// outward bound and the depth's length and threshold in the masks' pixel footprints at the
 /// mesh's centre.
