@@ -898,11 +898,7 @@ fn shading_refined(
                 .map(|(o, _)| (o - bias).abs() / footprint)
                 .collect();
             dev.sort_by(f32::total_cmp);
-            let q = |p: f64| {
-                dev.get(((dev.len() as f64 - 1.0) * p) as usize)
-                    .copied()
-                    .unwrap_or(0.0)
-            };
+            let q = |p: f64| quantile(&dev, p).unwrap_or(0.0);
             notes.push(format!(
                 "shading refinement: the depth's offsets on {} faces, bias {:+.5}, \
                  |offset - bias| quantiles 0.5/0.75/0.9/0.99 {:.3}/{:.3}/{:.3}/{:.3} footprints",
@@ -925,7 +921,7 @@ fn shading_refined(
     {
         let mut s: Vec<f32> = s.iter().map(|v| v / footprint).collect();
         s.sort_by(f32::total_cmp);
-        let q = |p: f64| s[((s.len() - 1) as f64 * p) as usize];
+        let q = |p: f64| quantile(&s, p).unwrap_or(0.0);
         notes.push(format!(
             "shading refinement: the vertices' slack on the masks' hull, quantiles \
              0.1/0.5/0.9/0.99 {:.2}/{:.2}/{:.2}/{:.2} footprints (the anchor is whole from {slack})",
@@ -948,6 +944,13 @@ fn shading_refined(
         t0.elapsed().as_secs_f64()
     ));
     Ok(refined.mesh)
+}
+
+/// The `p` quantile of the ascending `sorted` (the value at `floor((n - 1) p)`); `None` when
+/// it is empty.
+fn quantile(sorted: &[f32], p: f64) -> Option<f32> {
+    let last = sorted.len().checked_sub(1)?;
+    sorted.get((last as f64 * p) as usize).copied()
 }
 
 /// Every view's depth map, with the samples that fail [`MeshConfig::depth_consistency`] (when

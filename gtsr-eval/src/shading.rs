@@ -728,7 +728,21 @@ const SLACK_STEPS: usize = 32;
 /// hull holds exactly still has a positive anchor length).
 const SLACK_FLOOR: f32 = 1e-3;
 /// The power of the slack in the anchor length.
-const SLACK_POWER: i32 = 4;
+const SLACK_POWER: f32 = 4.0;
+
+/// Per vertex, the factor on the refinement's anchor weight ([`crate::refine::refine_anchored`])
+/// that holds it by its slack (any length unit, the same for `reference`): the anchor length is
+/// the anchor times `min(1, slack / reference)^power`, at least a thousandth of it, and the
+/// weight goes as one over the length squared.
+pub fn slack_anchor_scale(slack: &[f32], reference: f32, power: f32) -> Vec<f32> {
+    slack
+        .iter()
+        .map(|s| {
+            let m = (s / reference).min(1.0).powf(power).max(SLACK_FLOOR);
+            1.0 / (m * m)
+        })
+        .collect()
+}
 
 /// Settings of [`refine_by_shading`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -849,15 +863,8 @@ pub fn refine_by_shading(
         max_outward: settings.max_outward,
         ..RefineSettings::default()
     };
-    // The anchor's weight goes as one over its length squared.
-    let scale: Option<Vec<f32>> = slack.as_ref().zip(settings.slack_reference).map(|(s, r)| {
-        s.iter()
-            .map(|s| {
-                let m = (s / r).min(1.0).powi(SLACK_POWER).max(SLACK_FLOOR);
-                1.0 / (m * m)
-            })
-            .collect()
-    });
+    let scale: Option<Vec<f32>> = (slack.as_ref().zip(settings.slack_reference))
+        .map(|(s, r)| slack_anchor_scale(s, r, SLACK_POWER));
     // A round observes the normals on `on` (the last round's mesh) and refines `mesh` by them.
     let round = |on: &TriMesh| -> Result<(TriMesh, Vec<f32>, ShadingFit)> {
         let caster = crate::MeshRaycaster::new(on, "the mesh to refine")?;

@@ -381,6 +381,10 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
         && args.low_pass.is_finite()
         && args.low_pass >= 0.0
         && args.response != 1
+        && args.slack_power.is_finite()
+        && args.slack_power >= 0.0
+        && args.slack_ref.is_finite()
+        && args.slack_ref > 0.0
         && args.orient_debias.is_finite()
         && args.orient_debias >= 0.0
         && (0.0..=1.0).contains(&args.min_openness)
@@ -390,7 +394,7 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
     if !valid {
         bail!(
             "--min-cos must be in [0, 1), --depart-deg in [0, 180), --pin and --max-depth \
-             positive, --max-outward, --free-radius, --low-pass and --orient-debias non-negative, --response 0 or at least 2, --min-openness in [0, 1], --interreflection-c non-negative"
+             positive, --max-outward, --free-radius, --low-pass, --orient-debias and --slack-power non-negative, --slack-ref positive, --response 0 or at least 2, --min-openness in [0, 1], --interreflection-c non-negative"
         );
     }
     let channel = match args.channel {
@@ -579,18 +583,8 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
             );
         }
     }
-    let slack_scale: Option<Vec<f32>> = (args.slack_power > 0.0).then(|| {
-        slack
-            .iter()
-            .map(|s| {
-                let m = (s / args.slack_ref)
-                    .min(1.0)
-                    .powf(args.slack_power)
-                    .max(1e-3);
-                1.0 / (m * m)
-            })
-            .collect()
-    });
+    let slack_scale: Option<Vec<f32>> = (args.slack_power > 0.0)
+        .then(|| gtsr_eval::shading::slack_anchor_scale(&slack, args.slack_ref, args.slack_power));
     println!(
         "\n| anchor | round | chamfer | accuracy | completeness | hull-blind | solved faces | \
          shading normals vs truth (deg) | moves mean / most |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
