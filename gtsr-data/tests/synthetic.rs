@@ -325,7 +325,7 @@ fn bad_configuration_is_an_error() {
     let mut cfg = small_config(ShapeKind::Sphere, 1);
     cfg.n_train = 0;
     assert!(generate_scene(tmp.path(), &cfg, |_| {}).is_err());
-    assert!("cube".parse::<ShapeKind>().is_err());
+    assert!("dodecahedron".parse::<ShapeKind>().is_err());
     assert_eq!(
         "torus_knot".parse::<ShapeKind>().unwrap(),
         ShapeKind::TorusKnot

@@ -15,6 +15,8 @@
 //!   [`DENT_CENTRE`] from the origin along [`dent_axis`]): a smooth dent 0.25 deep and about
 //!   0.85 across that no silhouette sees; icosphere mesh with its vertices moved radially onto
 //!   the dent.
+//! * [`ShapeKind::Cube`]: a cube of half-side [`CUBE_HALF`] turned obliquely
+//!   ([`cube_rotation`]): flat faces and sharp edges; each face a grid of squares.
 
 use std::collections::HashMap;
 use std::f32::consts::TAU;
@@ -37,6 +39,8 @@ pub enum ShapeKind {
     TorusKnot,
     /// Unit sphere with a wide spherical dent, a concavity hidden from every silhouette.
     DentedSphere,
+    /// A cube turned obliquely: flat faces and sharp edges.
+    Cube,
 }
 
 /// Torus major radius.
@@ -55,15 +59,26 @@ pub fn dent_axis() -> Vec3 {
     Vec3::new(1.0, -1.0, 1.0).normalize()
 }
 const KNOT_SCALE: f32 = (1.0 - KNOT_TUBE) / 3.0;
+/// The cube's half-side: its corners lie on the unit sphere.
+pub const CUBE_HALF: f32 = 0.577_350_26;
+/// Squares along each edge of a cube face in the mesh.
+const CUBE_GRID: u32 = 48;
+
+/// The cube's orientation: its own axes turned so that no face looks straight along the
+/// cameras' up axis or a horizontal axis.
+pub fn cube_rotation() -> glam::Quat {
+    glam::Quat::from_euler(glam::EulerRot::ZXY, 0.5, 0.35, 0.2)
+}
 
 impl ShapeKind {
     /// Every shape.
-    pub const ALL: [ShapeKind; 5] = [
+    pub const ALL: [ShapeKind; 6] = [
         ShapeKind::Sphere,
         ShapeKind::Torus,
         ShapeKind::Bear,
         ShapeKind::TorusKnot,
         ShapeKind::DentedSphere,
+        ShapeKind::Cube,
     ];
 
     /// The name used on the command line and in `meta.json`.
@@ -74,6 +89,7 @@ impl ShapeKind {
             ShapeKind::Bear => "bear",
             ShapeKind::TorusKnot => "torus_knot",
             ShapeKind::DentedSphere => "dented_sphere",
+            ShapeKind::Cube => "cube",
         }
     }
 
@@ -85,6 +101,7 @@ impl ShapeKind {
             ShapeKind::Bear => bear_mesh(112),
             ShapeKind::TorusKnot => tube_mesh(knot_curve, KNOT_TUBE, 1024, 40),
             ShapeKind::DentedSphere => dented_sphere_mesh(6),
+            ShapeKind::Cube => cube_mesh(CUBE_GRID),
         }
     }
 
@@ -103,6 +120,10 @@ impl ShapeKind {
             ShapeKind::DentedSphere => {
                 p.length_squared() <= 1.0
                     && (p - dent_axis() * DENT_CENTRE).length_squared() > DENT_RADIUS * DENT_RADIUS
+            }
+            ShapeKind::Cube => {
+                let q = cube_rotation().inverse() * p;
+                q.abs().max_element() <= CUBE_HALF
             }
         }
     }
@@ -137,6 +158,10 @@ impl ShapeKind {
                         }
                 }
             },
+            ShapeKind::Cube => {
+                let r = cube_rotation().inverse();
+                box_chord(r * o, r * d, CUBE_HALF).is_some_and(|(_, t1)| t1 > 0.0)
+            }
         }
     }
 }
@@ -154,7 +179,9 @@ impl std::str::FromStr for ShapeKind {
             .into_iter()
             .find(|k| k.name() == s || (s == "knot" && *k == ShapeKind::TorusKnot))
             .ok_or_else(|| {
-                format!("unknown shape '{s}' (sphere, torus, bear, torus_knot, dented_sphere)")
+                format!(
+                    "unknown shape '{s}' (sphere, torus, bear, torus_knot, dented_sphere, cube)"
+                )
             })
     }
 }
@@ -165,6 +192,66 @@ fn ball_chord(o: Vec3, d: Vec3, c: Vec3, r: f32) -> Option<(f32, f32)> {
     let b = oc.dot(d);
     let disc = b * b - (oc.length_squared() - r * r);
     (disc >= 0.0).then(|| (-b - disc.sqrt(), -b + disc.sqrt()))
+}
+
+/// The interval `[t0, t1]` of the line `o + t d` inside the axis-aligned box `|p_i| <= h`
+/// (slabs; a direction component of zero keeps the slab when the origin lies in it).
+fn box_chord(o: Vec3, d: Vec3, h: f32) -> Option<(f32, f32)> {
+    let (mut t0, mut t1) = (f32::NEG_INFINITY, f32::INFINITY);
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if o[k].abs() > h {
+                return None;
+            }
+            continue;
+        }
+        let (a, b) = ((-h - o[k]) / d[k], (h - o[k]) / d[k]);
+        t0 = t0.max(a.min(b));
+        t1 = t1.min(a.max(b));
+    }
+    (t0 <= t1).then_some((t0, t1))
+}
+
+/// The cube of half-side [`CUBE_HALF`], `n` squares (two triangles each) along each edge of
+/// each face, vertices shared along the edges, turned by [`cube_rotation`].
+fn cube_mesh(n: u32) -> TriMesh {
+    let mut index: HashMap<[u32; 3], u32> = HashMap::new();
+    let mut positions = Vec::new();
+    let mut vertex = |g: [u32; 3]| -> u32 {
+        *index.entry(g).or_insert_with(|| {
+            let c = |k: usize| (2.0 * g[k] as f32 / n as f32 - 1.0) * CUBE_HALF;
+            positions.push(cube_rotation() * Vec3::new(c(0), c(1), c(2)));
+            positions.len() as u32 - 1
+        })
+    };
+    let mut triangles = Vec::with_capacity(12 * (n * n) as usize);
+    for axis in 0..3 {
+        // (u, v, axis) is right-handed, so u x v points along +axis.
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        for side in [0, n] {
+            for i in 0..n {
+                for j in 0..n {
+                    let mut corner = |di: u32, dj: u32| {
+                        let mut g = [0; 3];
+                        g[axis] = side;
+                        g[u] = i + di;
+                        g[v] = j + dj;
+                        vertex(g)
+                    };
+                    let (a, b, c, d) = (corner(0, 0), corner(1, 0), corner(1, 1), corner(0, 1));
+                    if side == n {
+                        triangles.extend([[a, b, c], [a, c, d]]);
+                    } else {
+                        triangles.extend([[a, c, b], [a, d, c]]);
+                    }
+                }
+            }
+        }
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
 }
 
 /// The dented sphere's radius along the unit direction `u`: 1, or where the ray from the
