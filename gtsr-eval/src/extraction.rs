@@ -92,7 +92,7 @@ pub const DEFAULT_SHADING_ANCHOR: f32 = 100.0;
 /// The default of [`MeshConfig::shading_slack`], footprints.
 pub const DEFAULT_SHADING_SLACK: f32 = 4.0;
 /// The default of [`MeshConfig::shading_rounds`].
-pub const DEFAULT_SHADING_ROUNDS: usize = 3;
+pub const DEFAULT_SHADING_ROUNDS: usize = 6;
 /// The default of [`MeshConfig::shading_depth_threshold`], footprints.
 pub const DEFAULT_SHADING_DEPTH_THRESHOLD: f32 = 0.25;
 /// [`MeshConfig::shading_depth`]: the depth's offsets count on faces at least this many views
@@ -929,6 +929,16 @@ fn shading_refined(
             q(0.5),
             q(0.9),
             q(0.99)
+        ));
+    }
+    if !refined.round_changes.is_empty() {
+        let changes: Vec<String> = (refined.round_changes.iter())
+            .map(|c| format!("{:.3}", c / footprint))
+            .collect();
+        notes.push(format!(
+            "shading refinement: each later round changed the moves by {} footprints (root \
+             mean square)",
+            changes.join(", ")
         ));
     }
     notes.push(format!(

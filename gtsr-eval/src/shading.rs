@@ -802,6 +802,9 @@ pub struct ShadingRefined {
     /// Per vertex, its slack on the masks' hull (scene units, at most the reference) when
     /// [`ShadingRefinement::slack_reference`] is set.
     pub slack: Option<Vec<f32>>,
+    /// Per round after the first, how much it changed the vertices' moves: the root mean
+    /// square of the difference from the round before (scene units).
+    pub round_changes: Vec<f32>,
 }
 
 /// Refines `mesh` (a mesh around the object, such as the masks') by the normals its faces'
@@ -897,8 +900,11 @@ pub fn refine_by_shading(
         Ok((refined, moves, fit))
     };
     let (mut refined, mut moves, mut fit) = round(mesh)?;
+    let mut round_changes = Vec::with_capacity(settings.rounds.saturating_sub(1));
     for _ in 1..settings.rounds {
+        let last = moves;
         (refined, moves, fit) = round(&refined)?;
+        round_changes.push(rms_difference(&moves, &last));
     }
     Ok(ShadingRefined {
         mesh: refined,
@@ -907,7 +913,15 @@ pub fn refine_by_shading(
         interreflection: fit.interreflection,
         confidence: fit.mean_confidence(),
         slack,
+        round_changes,
     })
+}
+
+/// The root mean square of `a - b` (0 when empty).
+fn rms_difference(a: &[f32], b: &[f32]) -> f32 {
+    let n = a.len().min(b.len()).max(1);
+    let sum: f64 = a.iter().zip(b).map(|(x, y)| f64::from(x - y).powi(2)).sum();
+    (sum / n as f64).sqrt() as f32
 }
 
 #[cfg(test)]
@@ -1339,6 +1353,37 @@ mod tests {
         }
         // Inward only, up to the default's zero outward bound.
         assert!(refined.moves.iter().all(|d| *d <= 0.0));
+    }
+
+    /// Rounds observe the normals again where the lid has sunk: over the hidden bowl the
+    /// centre sinks deeper than after one round, and each later round reports how much it
+    /// changed the moves, less each time.
+    #[test]
+    fn later_rounds_sink_the_lid_deeper_and_report_their_changes() {
+        let one = ShadingRefinement {
+            anchor: 0.5,
+            ..ShadingRefinement::default()
+        };
+        let three = ShadingRefinement { rounds: 3, ..one };
+        let centre = |refined: &ShadingRefined, lid: &TriMesh| -> f32 {
+            let (mut sum, mut n) = (0.0f32, 0usize);
+            for (v, d) in lid.positions.iter().zip(&refined.moves) {
+                if v.truncate().length() < 0.3 * BOWL.1 {
+                    sum += d;
+                    n += 1;
+                }
+            }
+            sum / n as f32
+        };
+        let (lid, first) = refine_lid_over_bowl(0.0, &one);
+        let (_, last) = refine_lid_over_bowl(0.0, &three);
+        assert!(first.round_changes.is_empty());
+        assert_eq!(last.round_changes.len(), 2);
+        let c = &last.round_changes;
+        assert!(c.iter().all(|x| x.is_finite() && *x >= 0.0), "{c:?}");
+        assert!(c[1] <= c[0], "{c:?}");
+        let (a, b) = (centre(&first, &lid), centre(&last, &lid));
+        assert!(b < a - 0.05 * BOWL.0, "one round {a}, three {b}");
     }
 
     /// The same bowl under noisy images (each pixel off by up to 30 %): shrinking each face's
