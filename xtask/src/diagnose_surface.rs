@@ -332,6 +332,7 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
         .collect();
     md.push_str(&parts.join(", "));
     md.push('\n');
+    md.push_str(&light_shares(&trainer)?);
     if args.concavity_gap > 0.0 {
         md.push_str(&crate::concavity::report(&trainer, &scene, &gt, args)?);
     }
@@ -344,6 +345,99 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     println!("{md}");
     println!("written to {}", out.display());
     Ok(())
+}
+
+/// Training views whose C_PBR [`light_shares`] decomposes (evenly spaced over the views).
+const SHARE_VIEWS: usize = 16;
+
+/// Where C_PBR's light comes from on the object: on up to [`SHARE_VIEWS`] training views, over
+/// the pixels inside the mask (covered pixels without one), the mean linear radiance of the
+/// image and of C_PBR's three terms (the specular lobe, the diffuse term, the scattering map
+/// as weighted by `1 - A F`), mean over the colour channels. A markdown paragraph, empty
+/// without PBR.
+fn light_shares(trainer: &gtsr_model::trainer::Trainer) -> Result<String> {
+    let model = trainer.model().detached();
+    let opts = trainer.render_options(trainer.steps_done().saturating_sub(1), false);
+    let Some(light) = model.light() else {
+        return Ok(String::new());
+    };
+    let views = trainer.views();
+    let stride = views.len().div_ceil(SHARE_VIEWS).max(1);
+    let (mut image, mut spec, mut diffuse, mut scatter, mut pixels) = (0.0, 0.0, 0.0, 0.0, 0usize);
+    for v in views.iter().step_by(stride) {
+        let r = model.render(&v.camera, &v.rays, opts)?;
+        let (Some(g), Some(s)) = (r.geometry, r.scatter) else {
+            return Ok(String::new());
+        };
+        let gb = gtsr_model::pbr::GBuffer {
+            normal: g.normal,
+            depth: g.depth,
+            coverage: g.coverage.clone(),
+            base: g.base.context("base colour map")?,
+            roughness: g.roughness.context("roughness map")?,
+            scatter: Some(s),
+            rays: v.rays.clone(),
+        };
+        let all = gtsr_model::pbr::shade(&gb, light.clone(), opts.shading);
+        let surface = gtsr_model::pbr::shade(
+            &gtsr_model::pbr::GBuffer {
+                scatter: None,
+                ..gb
+            },
+            light.clone(),
+            opts.shading,
+        )
+        .colour;
+        let (all_c, surf_c) = (host_vec(all.colour), host_vec(surface));
+        let (lobe, cov) = (host_vec(all.specular), host_vec(g.coverage));
+        let rgb = host_vec(v.rgb.clone());
+        let inside = match &v.mask {
+            Some(m) => host_vec(m.clone()),
+            None => cov.clone(),
+        };
+        let lin = |x: f32| {
+            if opts.pbr_srgb {
+                gtsr_data::image_io::srgb_to_linear(x)
+            } else {
+                x
+            }
+        };
+        for p in (0..cov.len()).filter(|p| inside[*p] >= 0.5) {
+            let mean = |x: &[f32]| f64::from(x[3 * p] + x[3 * p + 1] + x[3 * p + 2]) / 3.0;
+            let lobe_p = f64::from(cov[p] * lobe[p]);
+            image += (0..3).map(|c| f64::from(lin(rgb[3 * p + c]))).sum::<f64>() / 3.0;
+            spec += lobe_p;
+            diffuse += mean(&surf_c) - lobe_p;
+            scatter += mean(&all_c) - mean(&surf_c);
+            pixels += 1;
+        }
+    }
+    if pixels == 0 {
+        return Ok(String::new());
+    }
+    let model_total = spec + diffuse + scatter;
+    let share = |x: f64| 100.0 * x / model_total.max(1e-12);
+    Ok(format!(
+        "\nWhere C_PBR's light comes from, over the object's pixels of {} training views \
+         (mean linear radiance): the images {:.4}, C_PBR {:.4} (before its sRGB clamp): the \
+         specular lobe {:.4} ({:.1} %), the diffuse term {:.4} ({:.1} %), the scattering map \
+         {:.4} ({:.1} %). The surface normals enter the scattering map only through Fresnel's \
+         weight{}.\n",
+        views.len().div_ceil(stride),
+        image / pixels as f64,
+        model_total / pixels as f64,
+        spec / pixels as f64,
+        share(spec),
+        diffuse / pixels as f64,
+        share(diffuse),
+        scatter / pixels as f64,
+        share(scatter),
+        if opts.shading.scatter_lambert {
+            " and the light's cosine (scatter_lambert)"
+        } else {
+            ""
+        }
+    ))
 }
 
 #[cfg(test)]
