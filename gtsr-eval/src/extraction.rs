@@ -949,7 +949,7 @@ fn shading_refined(
         refined.confidence,
         refined.interreflection,
         settings.anchor,
-        settings.rounds,
+        refined.round_changes.len() + 1,
         moved,
         t0.elapsed().as_secs_f64()
     ));

@@ -47,6 +47,6 @@ pub use metrics::{
     score_against_ground_truth, ssim,
 };
 pub use report::{ReportRow, RunMetrics, markdown_table, seed_summary_table};
-pub use timeline::{Timeline, TimelinePoint, plot_png};
+pub use timeline::{FINAL_LABEL, Timeline, TimelinePoint, plot_png};
 pub use tsdf::{TsdfVolume, default_voxel_for_radius};
 pub use visible::{observed_faces, outer_surface, pixel_visible_faces, winding_numbers};

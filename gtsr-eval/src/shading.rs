@@ -759,7 +759,8 @@ pub struct ShadingRefinement {
     pub surrounding_rays: usize,
     /// Observe-and-refine rounds: each observes the normals on the last round's mesh (the
     /// first on `mesh`) and refines `mesh` by them, so that the faces of a sunken lid are seen
-    /// where they now are (at least 1).
+    /// where they now are (at least 1; fewer run when a round leaves the mesh it observed
+    /// where it was).
     pub rounds: usize,
     /// Hold each vertex by its slack on the hull of the images' masks
     /// ([`crate::hull_slack`]): the anchor length is [`ShadingRefinement::anchor`] times
@@ -803,7 +804,8 @@ pub struct ShadingRefined {
     /// [`ShadingRefinement::slack_reference`] is set.
     pub slack: Option<Vec<f32>>,
     /// Per round after the first, how much it changed the vertices' moves: the root mean
-    /// square of the difference from the round before (scene units).
+    /// square of the difference from the round before (scene units). Shorter than
+    /// `rounds - 1` when a round left the mesh it observed unmoved (a fixed point).
     pub round_changes: Vec<f32>,
 }
 
@@ -901,7 +903,14 @@ pub fn refine_by_shading(
     };
     let (mut refined, mut moves, mut fit) = round(mesh)?;
     let mut round_changes = Vec::with_capacity(settings.rounds.saturating_sub(1));
+    let mut observed = mesh.positions.clone();
     for _ in 1..settings.rounds {
+        // A round that leaves the mesh it observed where it was has reached a fixed point:
+        // the next would observe the same mesh and return the same.
+        if refined.positions == observed {
+            break;
+        }
+        observed = refined.positions.clone();
         let last = moves;
         (refined, moves, fit) = round(&refined)?;
         round_changes.push(rms_difference(&moves, &last));
@@ -1353,6 +1362,33 @@ mod tests {
         }
         // Inward only, up to the default's zero outward bound.
         assert!(refined.moves.iter().all(|d| *d <= 0.0));
+    }
+
+    /// A round that moves nothing is a fixed point: no view sees the mesh, so no normal is
+    /// solved, nothing moves, and the later rounds are not run.
+    #[test]
+    fn rounds_stop_at_a_fixed_point() {
+        let mesh = square();
+        // Behind the square's plane, looking away from it.
+        let cam = Camera::look_at(-1.5 * Vec3::Z, -3.0 * Vec3::Z, Vec3::Y, 0.35, 8, 8);
+        let rad = vec![0.5f32; 64];
+        let images = [ShadingImage {
+            camera: &cam,
+            radiance: &rad,
+            mask: None,
+        }];
+        let settings = ShadingRefinement {
+            rounds: 4,
+            ..ShadingRefinement::default()
+        };
+        let refined = refine_by_shading(&mesh, &images, None, &settings).unwrap();
+        assert_eq!(refined.solved, 0);
+        assert!(refined.moves.iter().all(|d| *d == 0.0));
+        assert!(
+            refined.round_changes.is_empty(),
+            "{:?}",
+            refined.round_changes
+        );
     }
 
     /// Rounds observe the normals again where the lid has sunk: over the hidden bowl the

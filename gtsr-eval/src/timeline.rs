@@ -29,9 +29,15 @@ pub struct TimelinePoint {
     pub depth_error: Option<f64>,
     /// Number of Gaussians.
     pub gaussians: u64,
-    /// Free-form label (for example the method or the evaluation split).
+    /// Free-form label (for example the method or the evaluation split); [`FINAL_LABEL`]
+    /// marks a run's final evaluation.
     pub label: String,
 }
+
+/// The label of a run's final evaluation: the mesh as the run outputs it (the full extraction;
+/// the evaluations during training take a quicker one), at the last training time. Plots
+/// draw it as a cross off the curve; a timeline has at most one.
+pub const FINAL_LABEL: &str = "final";
 
 /// An error-against-run-time log.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -89,6 +95,19 @@ impl Timeline {
     /// Appends a point.
     pub fn push(&mut self, point: TimelinePoint) {
         self.points.push(point);
+    }
+
+    /// Sets the final evaluation ([`FINAL_LABEL`]), replacing an earlier one (`point`'s label
+    /// is set to it).
+    pub fn set_final(&mut self, mut point: TimelinePoint) {
+        self.drop_final();
+        point.label = FINAL_LABEL.to_string();
+        self.points.push(point);
+    }
+
+    /// Removes the final evaluation, for a run that trains on.
+    pub fn drop_final(&mut self) {
+        self.points.retain(|p| p.label != FINAL_LABEL);
     }
 
     /// The CSV text: [`CSV_HEADER`], then one line per point; floats in Rust's shortest
@@ -225,8 +244,8 @@ const PLOT_SIZE: (u32, u32) = (1400, 560);
 
 /// Draws PSNR against training time (left panel) and, when any point has them, the chamfer
 /// distance and the depth error against training time on log axes (further panels), one
-/// line per series with a legend, and writes the PNG to `path` atomically. Errors when no
-/// series has a point.
+/// line per series with a legend, a series' final evaluation ([`FINAL_LABEL`]) as a cross
+/// off its line, and writes the PNG to `path` atomically. Errors when no series has a point.
 pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
     let plot_err = |message: String| EvalError::Plot {
         path: path.to_path_buf(),
@@ -283,11 +302,18 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
                 .map_err(|e| plot_err(e.to_string()))?;
             for (k, (name, t)) in series.iter().enumerate() {
                 let c = colour(k);
+                let finite = |p: &&TimelinePoint| p.psnr.is_finite() && p.train_seconds.is_finite();
+                chart
+                    .draw_series(
+                        (t.points.iter().filter(finite))
+                            .filter(|p| p.label == FINAL_LABEL)
+                            .map(|p| Cross::new((p.train_seconds, p.psnr), 7, c.stroke_width(2))),
+                    )
+                    .map_err(|e| plot_err(e.to_string()))?;
                 chart
                     .draw_series(LineSeries::new(
-                        t.points
-                            .iter()
-                            .filter(|p| p.psnr.is_finite() && p.train_seconds.is_finite())
+                        (t.points.iter().filter(finite))
+                            .filter(|p| p.label != FINAL_LABEL)
                             .map(|p| (p.train_seconds, p.psnr)),
                         c.stroke_width(2),
                     ))
@@ -334,13 +360,18 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
                 .map_err(|e| plot_err(e.to_string()))?;
             for (k, (name, t)) in series.iter().enumerate() {
                 let c = colour(k);
-                let pts: Vec<(f64, f64)> = t
-                    .points
-                    .iter()
-                    .filter_map(|p| Some((p.train_seconds, (panel.get)(p)?)))
-                    .filter(|(s, c)| s.is_finite() && c.is_finite() && *c > 0.0)
-                    .map(|(s, c)| (s, c.log10()))
-                    .collect();
+                let on_curve = |last: bool| -> Vec<(f64, f64)> {
+                    (t.points.iter())
+                        .filter(|p| (p.label == FINAL_LABEL) == last)
+                        .filter_map(|p| Some((p.train_seconds, (panel.get)(p)?)))
+                        .filter(|(s, c)| s.is_finite() && c.is_finite() && *c > 0.0)
+                        .map(|(s, c)| (s, c.log10()))
+                        .collect()
+                };
+                let (pts, last) = (on_curve(false), on_curve(true));
+                chart
+                    .draw_series(last.iter().map(|&p| Cross::new(p, 7, c.stroke_width(2))))
+                    .map_err(|e| plot_err(e.to_string()))?;
                 if pts.is_empty() {
                     continue;
                 }

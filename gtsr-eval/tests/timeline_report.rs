@@ -1,7 +1,7 @@
 use gtsr_eval::report::{
     ReportRow, format_duration, markdown_table, seed_summary_table, write_markdown,
 };
-use gtsr_eval::timeline::{Timeline, TimelinePoint, plot_png};
+use gtsr_eval::timeline::{FINAL_LABEL, Timeline, TimelinePoint, plot_png};
 
 fn timeline(label: &str, scale: f64, with_chamfer: bool) -> Timeline {
     timeline_with(label, scale, with_chamfer, false)
@@ -99,6 +99,45 @@ fn plots_are_written_as_png() {
     plot_png(&one, &[("pgsr", &b)]).unwrap();
     assert!(std::fs::metadata(&one).unwrap().len() > 1000);
     assert!(plot_png(&dir.path().join("none.png"), &[("empty", &Timeline::new())]).is_err());
+}
+
+/// A run's final evaluation is one point at the end, replaced when set again, kept by the
+/// CSV, removed for a run that trains on, and drawn as a cross off the curve.
+#[test]
+fn the_final_evaluation_is_one_point_drawn_off_the_curve() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = timeline_with("test", 1.0, true, true);
+    let mut t = base.clone();
+    let last = t.points.last().unwrap().clone();
+    t.set_final(TimelinePoint {
+        chamfer: Some(0.5),
+        ..last.clone()
+    });
+    t.set_final(TimelinePoint {
+        label: "anything".into(),
+        ..last.clone()
+    });
+    assert_eq!(t.points.len(), base.points.len() + 1);
+    let end = t.points.last().unwrap();
+    assert_eq!(
+        (end.label.as_str(), end.chamfer),
+        (FINAL_LABEL, last.chamfer)
+    );
+    let path = dir.path().join("timeline.csv");
+    t.write_csv(&path).unwrap();
+    assert_eq!(Timeline::read_csv(&path).unwrap(), t);
+    // The same values as the curve's last point: the plots differ by the cross alone.
+    let (with, without) = (dir.path().join("with.png"), dir.path().join("without.png"));
+    plot_png(&with, &[("gtsr", &t)]).unwrap();
+    plot_png(&without, &[("gtsr", &base)]).unwrap();
+    let (a, b) = (
+        image::open(&with).unwrap().to_rgb8(),
+        image::open(&without).unwrap().to_rgb8(),
+    );
+    let differ = a.pixels().zip(b.pixels()).filter(|(p, q)| p != q).count();
+    assert!(differ > 20, "{differ} pixels differ");
+    t.drop_final();
+    assert_eq!(t, base);
 }
 
 #[test]

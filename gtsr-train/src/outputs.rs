@@ -60,6 +60,28 @@ pub struct Evaluation {
     pub seconds: f64,
 }
 
+impl Evaluation {
+    /// The evaluation as a point of the error-against-time log, at the trainer's step.
+    pub fn timeline_point(
+        &self,
+        trainer: &Trainer,
+        train_seconds: f64,
+        label: &str,
+    ) -> gtsr_eval::TimelinePoint {
+        let (ns, ni) = trainer.model().counts();
+        gtsr_eval::TimelinePoint {
+            iteration: trainer.steps_done() as u64,
+            train_seconds,
+            psnr: self.psnr,
+            ssim: self.ssim,
+            chamfer: self.mesh.as_ref().map(|m| m.chamfer),
+            depth_error: self.depth.as_ref().map(|d| d.depth_median_abs),
+            gaussians: (ns + ni) as u64,
+            label: label.into(),
+        }
+    }
+}
+
 /// Without masks: the axis-aligned box around the surface Gaussians that matter (opacity at
 /// least 0.05; all of them when fewer than 100 do), grown by 10 %. Percentile boxes cut thin parts such as ears
 /// off, so the extremes are kept.
@@ -504,11 +526,17 @@ pub fn finish(
     metrics
         .write(&path)
         .with_context(|| format!("writing {}", path.display()))?;
+    // The curve's last point is the mesh as written (the evaluations during training take
+    // the quicker extraction).
+    let mut timeline = timeline.clone();
+    timeline.set_final(e.timeline_point(trainer, train_seconds, gtsr_eval::FINAL_LABEL));
+    let csv = out.join("error_vs_time.csv");
+    timeline
+        .write_csv(&csv)
+        .with_context(|| format!("writing {}", csv.display()))?;
     let plot = out.join("error_vs_time.png");
-    if !timeline.points.is_empty() {
-        gtsr_eval::plot_png(&plot, &[("gtsr", timeline)])
-            .with_context(|| format!("writing {}", plot.display()))?;
-    }
+    gtsr_eval::plot_png(&plot, &[("gtsr", &timeline)])
+        .with_context(|| format!("writing {}", plot.display()))?;
     println!("outputs in {}:", out.display());
     println!(
         "  mesh.ply            {} vertices, {} triangles",

@@ -11,7 +11,7 @@ use burn::tensor::Device;
 use gtsr_data::synthetic::{MaterialPreset, SceneConfig, ShapeKind, generate_scene};
 use gtsr_data::{Downscale, LoadOptions, Scene, load_scene};
 use gtsr_eval::MeshConfig;
-use gtsr_eval::{Timeline, TimelinePoint};
+use gtsr_eval::Timeline;
 use gtsr_model::checkpoint;
 use gtsr_model::config::{Decision, Preset, TrainConfig, auto_components};
 use gtsr_model::trainer::{StepTimes, Trainer, initial_points};
@@ -499,7 +499,9 @@ pub fn run(args: &Args) -> Result<Outcome> {
             .ok()
             .and_then(|s| serde_json::from_str(&s).ok())
             .unwrap_or_default();
-        let tl = Timeline::read_csv(&timeline_path).unwrap_or_default();
+        // The last finish's final evaluation is written again when this run finishes.
+        let mut tl = Timeline::read_csv(&timeline_path).unwrap_or_default();
+        tl.drop_final();
         if let Some(n) = args.iterations.map(|n| n as usize)
             && n != t.config().iterations
         {
@@ -733,17 +735,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
                 &mesh_settings,
                 true,
             )?;
-            let (ns, ni) = trainer.model().counts();
-            timeline.push(TimelinePoint {
-                iteration: trainer.steps_done() as u64,
-                train_seconds,
-                psnr: e.psnr,
-                ssim: e.ssim,
-                chamfer: e.mesh.as_ref().map(|m| m.chamfer),
-                depth_error: e.depth.as_ref().map(|d| d.depth_median_abs),
-                gaussians: (ns + ni) as u64,
-                label: "test".into(),
-            });
+            timeline.push(e.timeline_point(&trainer, train_seconds, "test"));
             timeline.write_csv(&timeline_path)?;
             say(
                 &bar,

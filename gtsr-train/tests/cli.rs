@@ -83,6 +83,23 @@ fn trains_a_tiny_scene_and_writes_every_output() {
     assert!(psnr.is_finite() && psnr > 5.0, "{m}");
     let chamfer = m["mesh"]["chamfer"].as_f64().unwrap();
     assert!(chamfer.is_finite() && chamfer > 0.0, "{m}");
+    // The curve ends with the final evaluation: the mesh as written, as metrics.json scores it.
+    let finals = |dir: &Path| -> Vec<gtsr_eval::TimelinePoint> {
+        let t = gtsr_eval::Timeline::read_csv(&dir.join("error_vs_time.csv")).unwrap();
+        assert!(t.points.len() >= 2, "{t:?}");
+        assert_eq!(t.points.last().unwrap().label, gtsr_eval::FINAL_LABEL);
+        (t.points.into_iter())
+            .filter(|p| p.label == gtsr_eval::FINAL_LABEL)
+            .collect()
+    };
+    let last = finals(&out);
+    assert_eq!(last.len(), 1);
+    assert_eq!(last[0].iteration, 40);
+    let c = last[0].chamfer.unwrap();
+    assert!(
+        (c - chamfer).abs() <= 1e-12 * chamfer,
+        "{c} against {chamfer}"
+    );
     // The masks alone are scored beside the mesh, and both split by what the masks miss.
     let masks = m["masks_alone"]["chamfer"].as_f64().unwrap();
     assert!(masks.is_finite() && masks > 0.0, "{m}");
@@ -170,9 +187,15 @@ fn trains_a_tiny_scene_and_writes_every_output() {
         serde_json::from_str(&std::fs::read_to_string(part.join("metrics.json")).unwrap()).unwrap();
     assert_eq!(pm["iterations"], 40, "{pm}");
 
-    // --resume on a finished run re-extracts and re-evaluates without training further.
+    // --resume on a finished run re-extracts and re-evaluates without training further; the
+    // curve keeps one final evaluation.
     let o = gtsr_train(&scene, &out, &[&TINY_RUN[..], &["--resume"]].concat());
     assert!(o.status.success(), "{}", text(&o));
+    assert_eq!(finals(&out).len(), 1);
+    // A run stopped part-way and trained on has one final evaluation, at its last step.
+    let part_finals = finals(&part);
+    assert_eq!(part_finals.len(), 1);
+    assert_eq!(part_finals[0].iteration, 40);
     // Another step count cannot resume the run: its schedule was laid out for 40.
     let o = gtsr_train(
         &scene,
