@@ -364,11 +364,14 @@ fn light_shares(trainer: &gtsr_model::trainer::Trainer) -> Result<String> {
     let views = trainer.views();
     let stride = views.len().div_ceil(SHARE_VIEWS).max(1);
     let (mut image, mut spec, mut diffuse, mut scatter, mut pixels) = (0.0, 0.0, 0.0, 0.0, 0usize);
+    // Per channel, the image and C_PBR as the loss compares them.
+    let mut channels = [(0.0f64, 0.0f64); 3];
     for v in views.iter().step_by(stride) {
         let r = model.render(&v.camera, &v.rays, opts)?;
-        let (Some(g), Some(s)) = (r.geometry, r.scatter) else {
+        let (Some(g), Some(s), Some(compared)) = (r.geometry, r.scatter, r.c_pbr) else {
             return Ok(String::new());
         };
+        let compared = host_vec(compared);
         let gb = gtsr_model::pbr::GBuffer {
             normal: g.normal,
             depth: g.depth,
@@ -409,6 +412,10 @@ fn light_shares(trainer: &gtsr_model::trainer::Trainer) -> Result<String> {
             spec += lobe_p;
             diffuse += mean(&surf_c) - lobe_p;
             scatter += mean(&all_c) - mean(&surf_c);
+            for c in 0..3 {
+                channels[c].0 += f64::from(rgb[3 * p + c]);
+                channels[c].1 += f64::from(compared[3 * p + c]);
+            }
             pixels += 1;
         }
     }
@@ -417,12 +424,16 @@ fn light_shares(trainer: &gtsr_model::trainer::Trainer) -> Result<String> {
     }
     let model_total = spec + diffuse + scatter;
     let share = |x: f64| 100.0 * x / model_total.max(1e-12);
+    let n = pixels as f64;
+    let per_channel: Vec<String> = (channels.iter())
+        .map(|(i, c)| format!("{:.3} / {:.3}", i / n, c / n))
+        .collect();
     Ok(format!(
         "\nWhere C_PBR's light comes from, over the object's pixels of {} training views \
          (mean linear radiance): the images {:.4}, C_PBR {:.4} (before its sRGB clamp): the \
          specular lobe {:.4} ({:.1} %), the diffuse term {:.4} ({:.1} %), the scattering map \
          {:.4} ({:.1} %). The surface normals enter the scattering map only through Fresnel's \
-         weight{}.\n",
+         weight{}. As the loss compares them (R, G, B: image / C_PBR): {}.\n",
         views.len().div_ceil(stride),
         image / pixels as f64,
         model_total / pixels as f64,
@@ -436,7 +447,8 @@ fn light_shares(trainer: &gtsr_model::trainer::Trainer) -> Result<String> {
             " and the light's cosine (scatter_lambert)"
         } else {
             ""
-        }
+        },
+        per_channel.join(", ")
     ))
 }
 
