@@ -347,6 +347,9 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     Ok(())
 }
 
+/// A channel at least this high (of 1) counts as at the top of its range.
+const SATURATED: f32 = 0.999;
+
 /// Training views whose C_PBR [`light_shares`] decomposes (evenly spaced over the views).
 const SHARE_VIEWS: usize = 16;
 
@@ -366,6 +369,8 @@ fn light_shares(trainer: &gtsr_model::trainer::Trainer) -> Result<String> {
     let (mut image, mut spec, mut diffuse, mut scatter, mut pixels) = (0.0, 0.0, 0.0, 0.0, 0usize);
     // Per channel, the image and C_PBR as the loss compares them.
     let mut channels = [(0.0f64, 0.0f64); 3];
+    // Pixels with a channel at the top of the range: the image's, C_PBR's.
+    let mut saturated = (0usize, 0usize);
     for v in views.iter().step_by(stride) {
         let r = model.render(&v.camera, &v.rays, opts)?;
         let (Some(g), Some(s), Some(compared)) = (r.geometry, r.scatter, r.c_pbr) else {
@@ -416,6 +421,9 @@ fn light_shares(trainer: &gtsr_model::trainer::Trainer) -> Result<String> {
                 channels[c].0 += f64::from(rgb[3 * p + c]);
                 channels[c].1 += f64::from(compared[3 * p + c]);
             }
+            let top = |x: &[f32]| (0..3).any(|c| x[3 * p + c] >= SATURATED);
+            saturated.0 += usize::from(top(&rgb));
+            saturated.1 += usize::from(top(&compared));
             pixels += 1;
         }
     }
@@ -433,7 +441,8 @@ fn light_shares(trainer: &gtsr_model::trainer::Trainer) -> Result<String> {
          (mean linear radiance): the images {:.4}, C_PBR {:.4} (before its sRGB clamp): the \
          specular lobe {:.4} ({:.1} %), the diffuse term {:.4} ({:.1} %), the scattering map \
          {:.4} ({:.1} %). The surface normals enter the scattering map only through Fresnel's \
-         weight{}. As the loss compares them (R, G, B: image / C_PBR): {}.\n",
+         weight{}. As the loss compares them (R, G, B: image / C_PBR): {}; a channel at \
+         the top of the range on {:.1} % / {:.1} % of these pixels.\n",
         views.len().div_ceil(stride),
         image / pixels as f64,
         model_total / pixels as f64,
@@ -448,7 +457,9 @@ fn light_shares(trainer: &gtsr_model::trainer::Trainer) -> Result<String> {
         } else {
             ""
         },
-        per_channel.join(", ")
+        per_channel.join(", "),
+        100.0 * saturated.0 as f64 / n,
+        100.0 * saturated.1 as f64 / n
     ))
 }
 
