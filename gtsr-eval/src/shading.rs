@@ -903,15 +903,15 @@ pub fn refine_by_shading(
     };
     let (mut refined, mut moves, mut fit) = round(mesh)?;
     let mut round_changes = Vec::with_capacity(settings.rounds.saturating_sub(1));
-    let mut observed = mesh.positions.clone();
+    // The moves of the mesh the last round observed (`mesh` itself: none).
+    let mut last = vec![0.0; moves.len()];
     for _ in 1..settings.rounds {
         // A round that leaves the mesh it observed where it was has reached a fixed point:
         // the next would observe the same mesh and return the same.
-        if refined.positions == observed {
+        if moves == last {
             break;
         }
-        observed = refined.positions.clone();
-        let last = moves;
+        last = moves;
         (refined, moves, fit) = round(&refined)?;
         round_changes.push(rms_difference(&moves, &last));
     }

@@ -430,9 +430,9 @@ fn light_shares(trainer: &gtsr_model::trainer::Trainer) -> Result<String> {
     if pixels == 0 {
         return Ok(String::new());
     }
+    let n = pixels as f64;
     let model_total = spec + diffuse + scatter;
     let share = |x: f64| 100.0 * x / model_total.max(1e-12);
-    let n = pixels as f64;
     let per_channel: Vec<String> = (channels.iter())
         .map(|(i, c)| format!("{:.3} / {:.3}", i / n, c / n))
         .collect();
@@ -444,13 +444,13 @@ fn light_shares(trainer: &gtsr_model::trainer::Trainer) -> Result<String> {
          weight{}. As the loss compares them (R, G, B: image / C_PBR): {}; a channel at \
          the top of the range on {:.1} % / {:.1} % of these pixels.\n",
         views.len().div_ceil(stride),
-        image / pixels as f64,
-        model_total / pixels as f64,
-        spec / pixels as f64,
+        image / n,
+        model_total / n,
+        spec / n,
         share(spec),
-        diffuse / pixels as f64,
+        diffuse / n,
         share(diffuse),
-        scatter / pixels as f64,
+        scatter / n,
         share(scatter),
         if opts.shading.scatter_lambert {
             " and the light's cosine (scatter_lambert)"

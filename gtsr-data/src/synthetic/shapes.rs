@@ -215,12 +215,13 @@ fn box_chord(o: Vec3, d: Vec3, h: f32) -> Option<(f32, f32)> {
 /// The cube of half-side [`CUBE_HALF`], `n` squares (two triangles each) along each edge of
 /// each face, vertices shared along the edges, turned by [`cube_rotation`].
 fn cube_mesh(n: u32) -> TriMesh {
+    let turn = cube_rotation();
     let mut index: HashMap<[u32; 3], u32> = HashMap::new();
     let mut positions = Vec::new();
     let mut vertex = |g: [u32; 3]| -> u32 {
         *index.entry(g).or_insert_with(|| {
             let c = |k: usize| (2.0 * g[k] as f32 / n as f32 - 1.0) * CUBE_HALF;
-            positions.push(cube_rotation() * Vec3::new(c(0), c(1), c(2)));
+            positions.push(turn * Vec3::new(c(0), c(1), c(2)));
             positions.len() as u32 - 1
         })
     };
