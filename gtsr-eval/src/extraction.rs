@@ -80,6 +80,8 @@ pub const DEFAULT_CARVE_VIEWS: u64 = 1;
 pub const DEFAULT_CARVE_MARGIN: f32 = 1.0;
 /// The default concavity gate in footprints ([`CarveSettings::concavity_gate`]).
 pub const DEFAULT_CONCAVITY_GATE: f32 = 3.0;
+/// The default of [`MeshConfig::carve_max_opened`].
+pub const DEFAULT_CARVE_MAX_OPENED: f32 = 0.01;
 /// The default tolerance in footprints of [`MeshConfig::cull_unobserved`].
 pub const DEFAULT_CULL_UNOBSERVED: f32 = 3.0;
 /// How far the shading refinement may move a vertex outward, in the masks' footprints, when
@@ -185,6 +187,13 @@ pub struct MeshConfig {
     /// have moved ([`crate::shading::ShadingRefinement::rounds`]; at least 1).
     #[arg(skip = DEFAULT_SHADING_ROUNDS)]
     pub shading_rounds: usize,
+    /// Carving: the largest share of the masks' pixels (those the bound covers, over every
+    /// view) that the carved mesh may leave uncovered; beyond it the carving is refused and
+    /// the bound goes on alone. The object fills every mask, so a carving that opens the
+    /// silhouettes has cut into the object: the depth is not yet a surface (a run stopped
+    /// early, a failed one). 1: no check.
+    #[arg(skip = DEFAULT_CARVE_MAX_OPENED)]
+    pub carve_max_opened: f32,
     /// Carving: the grid spacing (scene units). Default: 0.75 of the masks' pixel footprint
     /// at the object, at the dataset's resolution.
     #[arg(long = "carve-voxel", id = "mesh.carve_voxel", value_name = "SIZE", value_parser = parse_positive)]
@@ -255,6 +264,7 @@ impl Default for MeshConfig {
             carve_concavity_gate: DEFAULT_CONCAVITY_GATE,
             carve_gate_radius: CarveSettings::default().gate_radius,
             cull_unobserved: DEFAULT_CULL_UNOBSERVED,
+            carve_max_opened: DEFAULT_CARVE_MAX_OPENED,
             shading_anchor: DEFAULT_SHADING_ANCHOR,
             shading_depth: 0.0,
             shading_depth_threshold: DEFAULT_SHADING_DEPTH_THRESHOLD,
@@ -360,6 +370,12 @@ impl MeshConfig {
             return bad(format!(
                 "mesh.cull_unobserved must be a finite number of footprints >= 0, got {}",
                 self.cull_unobserved
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.carve_max_opened) {
+            return bad(format!(
+                "mesh.carve_max_opened must be a share in [0, 1], got {}",
+                self.carve_max_opened
             ));
         }
         for (name, v) in [
@@ -680,7 +696,8 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
         }
         let maps = consistent_maps(config, inputs, &mut notes)?;
         // The hull's own depth, for the concavity gate: the masks' mesh ray cast per view.
-        let hull_maps: Vec<Vec<f32>> = if config.carve_concavity_gate > 0.0 {
+        let guard = config.carve_max_opened < 1.0;
+        let hull_maps: Vec<Vec<f32>> = if config.carve_concavity_gate > 0.0 || guard {
             let caster = MeshRaycaster::new(bound_mesh, "the masks' mesh")?;
             inputs
                 .views
@@ -698,7 +715,9 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
             .map(|(k, (v, depth))| DepthMap {
                 camera: v.camera,
                 depth,
-                hull_depth: hull_maps.get(k).map(Vec::as_slice),
+                hull_depth: (config.carve_concavity_gate > 0.0)
+                    .then(|| hull_maps.get(k).map(Vec::as_slice))
+                    .flatten(),
             })
             .collect();
         let voxel = config.carve_voxel.unwrap_or(masks.voxel);
@@ -729,6 +748,27 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
                 before - mesh.triangles.len(),
                 config.cull_unobserved
             ));
+        }
+        if guard {
+            let opened = opened_silhouettes(&mesh, inputs.views, &hull_maps)?;
+            let share = opened.share();
+            notes.push(format!(
+                "carving: the carved mesh leaves {} of the {} masked pixels the bound covers \
+                 uncovered ({:.3} %; most in one view {:.3} %)",
+                opened.opened,
+                opened.covered,
+                100.0 * share,
+                100.0 * opened.worst_view
+            ));
+            if share > f64::from(config.carve_max_opened) {
+                notes.push(format!(
+                    "carving refused: it opens the silhouettes beyond mesh.carve_max_opened \
+                     ({} %), so the depth maps are not a surface yet; the mesh is the masks' \
+                     bound",
+                    100.0 * config.carve_max_opened
+                ));
+                mesh = bound_mesh.clone();
+            }
         }
         if config.shading_anchor > 0.0
             && !inputs.coarse
@@ -815,6 +855,49 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
         tsdf.integrate(v.camera, depth, masks_pending.then_some(v.mask))?;
     }
     Ok((largest_component(&tsdf.extract_mesh()), notes))
+}
+
+/// How much of the masks a carved mesh leaves uncovered ([`MeshConfig::carve_max_opened`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Opened {
+    /// Pixels (mask at least 0.5) the bound covers and the carved mesh does not, all views.
+    opened: usize,
+    /// Pixels (mask at least 0.5) the bound covers, all views.
+    covered: usize,
+    /// The largest share of one view's covered pixels that is opened.
+    worst_view: f64,
+}
+
+impl Opened {
+    /// `opened / covered` (0 when nothing is covered).
+    fn share(&self) -> f64 {
+        self.opened as f64 / self.covered.max(1) as f64
+    }
+}
+
+/// The pixels of each view's mask that its bound's depth (`bound_depth`, the bound ray cast
+/// from that view, 0 on a miss) covers and `mesh` does not.
+fn opened_silhouettes(
+    mesh: &TriMesh,
+    views: &[FusionView<'_>],
+    bound_depth: &[Vec<f32>],
+) -> Result<Opened> {
+    let caster = MeshRaycaster::new(mesh, "the carved mesh")?;
+    let mut total = Opened::default();
+    for (v, bound) in views.iter().zip(bound_depth) {
+        let own = caster.render(v.camera).depth;
+        let (mut opened, mut covered) = (0usize, 0usize);
+        for ((m, b), d) in v.mask.iter().zip(bound).zip(&own) {
+            if *m >= 0.5 && *b > 0.0 {
+                covered += 1;
+                opened += usize::from(*d <= 0.0);
+            }
+        }
+        total.opened += opened;
+        total.covered += covered;
+        total.worst_view = total.worst_view.max(opened as f64 / covered.max(1) as f64);
+    }
+    Ok(total)
 }
 
 /// The rendered depth maps a refinement reads ([`MeshConfig::shading_depth`]).
@@ -1189,6 +1272,90 @@ mod tests {
             "distances past the edge"
         );
         assert!(masks.views[0].1.iter().all(|m| (0.0..=1.0).contains(m)));
+    }
+
+    /// A depth that is not a surface yet (here: a sphere's true depth pushed a radius
+    /// back, as an untrained model renders) carves into the object and opens the
+    /// silhouettes: the carving is refused and the mesh is the masks' bound. The true depth
+    /// carves nothing and opens nothing.
+    #[test]
+    fn a_carving_that_opens_the_silhouettes_is_refused() {
+        let radius = 0.8;
+        let masks = MasksAlone::new(sphere_masks(24, 24, radius))
+            .unwrap()
+            .expect("a sphere");
+        let depth_maps = |behind: f32| -> Vec<Vec<f32>> {
+            (masks.views.iter())
+                .map(|(cam, mask)| {
+                    let size = cam.width;
+                    let mut depth = vec![0.0f32; mask.len()];
+                    for j in 0..size {
+                        for i in 0..size {
+                            let k = (j * size + i) as usize;
+                            let (o, d) = cam.pixel_ray(i, j);
+                            let b = o.dot(d);
+                            let disc = b * b - (o.length_squared() - radius * radius);
+                            if mask[k] >= 0.5 && disc >= 0.0 {
+                                let hit = o + d * (-b - disc.sqrt());
+                                let z = cam.world_to_camera.transform_point3(hit).z;
+                                depth[k] = z + behind;
+                            }
+                        }
+                    }
+                    depth
+                })
+                .collect()
+        };
+        let extract = |maps: &[Vec<f32>], max_opened: f32| {
+            let views: Vec<FusionView<'_>> = (masks.views.iter().zip(maps))
+                .map(|((camera, mask), depth)| FusionView {
+                    camera,
+                    depth,
+                    mask,
+                })
+                .collect();
+            let cameras: Vec<Camera> = masks.views.iter().map(|(c, _)| *c).collect();
+            let inputs = FusionInputs {
+                views: &views,
+                masked: true,
+                masks: Some(&masks),
+                footprint_cameras: &cameras,
+                bounds: (Vec3::splat(-1.2), Vec3::splat(1.2)),
+                coarse: false,
+            };
+            let config = MeshConfig {
+                carve_max_opened: max_opened,
+                cull_unobserved: 0.0,
+                // A coarse grid keeps the test quick; the bound keeps its own.
+                carve_voxel: Some(0.04),
+                ..MeshConfig::default()
+            };
+            extract_mesh(&config, &inputs).unwrap()
+        };
+        let hull = masks.bound_mesh().triangles.len();
+        let (truth, notes) = extract(&depth_maps(0.0), DEFAULT_CARVE_MAX_OPENED);
+        assert!(
+            !notes.iter().any(|n| n.starts_with("carving refused")),
+            "{notes:?}"
+        );
+        assert!(
+            notes.iter().any(|n| n.contains("(0.000 %")),
+            "the true depth opens nothing: {notes:?}"
+        );
+        let behind = depth_maps(radius);
+        let (unguarded, _) = extract(&behind, 1.0);
+        assert!(
+            unguarded.triangles.len() < truth.triangles.len() / 2,
+            "the pushed-back depth carves most of the sphere away: {} faces left of {}",
+            unguarded.triangles.len(),
+            truth.triangles.len()
+        );
+        let (guarded, notes) = extract(&behind, DEFAULT_CARVE_MAX_OPENED);
+        assert_eq!(guarded.triangles.len(), hull, "{notes:?}");
+        assert!(
+            notes.iter().any(|n| n.starts_with("carving refused")),
+            "{notes:?}"
+        );
     }
 
     /// The radiance given for the shading refinement must match the masks view for view.

@@ -103,6 +103,18 @@ fn trains_a_tiny_scene_and_writes_every_output() {
     // The masks alone are scored beside the mesh, and both split by what the masks miss.
     let masks = m["masks_alone"]["chamfer"].as_f64().unwrap();
     assert!(masks.is_finite() && masks > 0.0, "{m}");
+    // Forty steps leave a depth far behind the surface: it would carve through the object,
+    // so the carving is refused (it opens the silhouettes) and the mesh does not lose to the
+    // masks alone.
+    assert!(
+        text(&o).contains("carving: the carved mesh leaves"),
+        "{}",
+        text(&o)
+    );
+    assert!(
+        chamfer <= 1.05 * masks,
+        "mesh {chamfer} against masks {masks}"
+    );
     let blind = &m["mesh"]["hull_blind"];
     assert!(blind["fraction"].as_f64().unwrap() >= 0.0, "{m}");
     assert!(blind["rest"].as_f64().unwrap() > 0.0, "{m}");
