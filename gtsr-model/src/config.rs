@@ -748,6 +748,15 @@ pub struct TrainConfig {
     #[serde(default)]
     #[arg(skip)]
     pub scatter_lambert: bool,
+    /// With `pbr_srgb_output`: decode C_PBR's scattering map from the sRGB curve before it
+    /// is added to the linear specular and diffuse terms
+    /// ([`crate::pbr::ShadingParams::scatter_srgb`]), since the interior set's colours are
+    /// the ones C_SH compares with the sRGB images. Off by default: it gains 1-4 dB of C_SH
+    /// and 2-8 dB of C_PBR, but the surface set's depth ends deeper, and on amber_ingot the
+    /// carving then cuts into the object (`docs/2026-11-27-scatter-srgb.md`).
+    #[serde(default)]
+    #[arg(long = "pbr-scatter-srgb", id = "train.pbr_scatter_srgb", value_name = "BOOL", action = ArgAction::Set, default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).pbr_scatter_srgb, help_heading = "Training")]
+    pub pbr_scatter_srgb: bool,
 }
 
 /// The blur of configs written before `blur_px2` was a setting.
@@ -781,6 +790,7 @@ impl TrainConfig {
             blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
             surface_opacity_floor: 0.0,
             scatter_lambert: false,
+            pbr_scatter_srgb: false,
         };
         c.set_schedule(iterations);
         c
@@ -1093,6 +1103,21 @@ mod tests {
             serde_json::from_str::<TrainConfig>(&json)
                 .unwrap()
                 .scatter_lambert
+        );
+    }
+
+    #[test]
+    fn the_scattering_map_decoding_is_off_by_default_and_in_old_configs() {
+        let c = TrainConfig::for_iterations(Components::FULL, 100);
+        assert!(!c.pbr_scatter_srgb);
+        let mut on = c.clone();
+        on.pbr_scatter_srgb = true;
+        assert!(!read_without(&on, &["pbr_scatter_srgb"]).pbr_scatter_srgb);
+        let json = serde_json::to_string(&on).unwrap();
+        assert!(
+            serde_json::from_str::<TrainConfig>(&json)
+                .unwrap()
+                .pbr_scatter_srgb
         );
     }
 

@@ -9,6 +9,10 @@
 //! - `C_PBR = A (C_s + gamma C_d) + (1 - A F) C_scatter`, with `A` the surface coverage (alpha of
 //!   the surface pass): on covered pixels (`A = 1`) this is the paper's
 //!   `C_s + gamma C_d + (1 - F) C_scatter`; where there is no surface only scattering remains.
+//! - With [`ShadingParams::scatter_srgb`] (off by default in training) `C_scatter` is the
+//!   scattering map decoded from the sRGB curve: the interior set's colours are the ones C_SH
+//!   blends and compares with the sRGB images, so the map is sRGB-encoded, while the sum
+//!   above adds linear radiance (and is sRGB-encoded again when it is compared with images).
 //! - With [`ShadingParams::scatter_lambert`] (an experiment, off by default) `C_scatter` is
 //!   lit as a diffuse lobe: multiplied by `A c L / dist^2 + (1 - A)`.
 //!
@@ -65,6 +69,11 @@ pub struct ShadingParams {
     /// the views that see a surface point, its `c` is a degree-1 SH of the view direction), so
     /// the normals need not explain the shading.
     pub scatter_lambert: bool,
+    /// Decode the scattering map from the sRGB curve ([`srgb_to_linear`]) before it is added
+    /// to the linear specular and diffuse terms: the map holds the interior set's colours as
+    /// C_SH blends them against sRGB images. Off: the map is taken as linear radiance, which
+    /// makes C_PBR, once encoded, brighter than C_SH with the same interior colours.
+    pub scatter_srgb: bool,
 }
 
 /// The shading terms, kept apart for inspection and tests.
@@ -111,7 +120,11 @@ pub fn shade(g: &GBuffer, light: Tensor<2>, p: ShadingParams) -> Shaded {
     let cov = g.coverage.clone().reshape([h, w, 1]);
     let mut colour = (diffuse * p.gamma + spec.clone().reshape([h, w, 1])) * cov.clone();
     if let Some(s) = &g.scatter {
-        let mut s = s.clone();
+        let mut s = if p.scatter_srgb {
+            srgb_to_linear(s.clone())
+        } else {
+            s.clone()
+        };
         if p.scatter_lambert {
             // A (c L / dist^2) + (1 - A): lit where there is a surface, as it is elsewhere.
             let lit = (c.clone() * radiance.clone() - 1.0) * g.coverage.clone() + 1.0;
@@ -134,6 +147,27 @@ pub fn linear_to_srgb<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     let high = x.clone().clamp_min(0.003_130_8).powf_scalar(1.0 / 2.4) * 1.055 - 0.055;
     let is_low = x.lower_equal_elem(0.003_130_8);
     high.mask_where(is_low, low)
+}
+
+/// The inverse of [`linear_to_srgb`] on `[0, 1]`, extended past 1 by the same power (SH
+/// colours are not bounded above); negative inputs give 0. Its gradient is bounded on any
+/// bounded input.
+pub fn srgb_to_linear<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+    let x = x.clamp_min(0.0);
+    let low = x.clone() / 12.92;
+    let high = ((x.clone() + 0.055) / 1.055).powf_scalar(2.4);
+    let is_low = x.lower_equal_elem(0.040_45);
+    high.mask_where(is_low, low)
+}
+
+/// Host version of [`srgb_to_linear`] for one value.
+pub fn srgb_to_linear_value(x: f64) -> f64 {
+    let x = x.max(0.0);
+    if x <= 0.040_45 {
+        x / 12.92
+    } else {
+        ((x + 0.055) / 1.055).powf(2.4)
+    }
 }
 
 /// Host version of [`shade`] for one pixel (f64), used by tests as the direct evaluation.
@@ -177,7 +211,12 @@ pub fn shade_pixel(
             } else {
                 1.0
             };
-            out[k] += (1.0 - coverage * f) * s[k] * lit;
+            let s = if p.scatter_srgb {
+                srgb_to_linear_value(s[k])
+            } else {
+                s[k]
+            };
+            out[k] += (1.0 - coverage * f) * s * lit;
         }
     }
     out

@@ -539,6 +539,7 @@ impl Trainer {
                 gamma: self.config.pbr_gamma,
                 min_roughness: self.config.min_roughness,
                 scatter_lambert: self.config.scatter_lambert,
+                scatter_srgb: self.config.pbr_srgb_output && self.config.pbr_scatter_srgb,
             },
             pbr_srgb: self.config.pbr_srgb_output,
             spread: false,

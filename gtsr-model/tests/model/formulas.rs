@@ -18,6 +18,7 @@ const SHADING: ShadingParams = ShadingParams {
     gamma: 0.3,
     min_roughness: 0.08,
     scatter_lambert: false,
+    scatter_srgb: false,
 };
 
 fn camera() -> Camera {
@@ -588,13 +589,23 @@ fn pbr_matches_per_pixel_evaluation_and_stays_finite_at_extremes() {
         cov.push(c);
         base.extend((0..3).map(|_| rng.random_range(0.0..1.0f32) * c));
         rough.push(r);
-        scatter.extend((0..3).map(|_| rng.random_range(0.0..1.0f32)));
+        if p == 4 {
+            // A black, a negative and an over-bright scattering colour (SH colours are not
+            // bounded above).
+            scatter.extend([0.0, -0.3, 3.0]);
+        } else {
+            scatter.extend((0..3).map(|_| rng.random_range(0.0..1.0f32)));
+        }
         rays.extend(ray);
     }
-    // The paper's scattering map, and the same lit as a diffuse lobe.
-    for scatter_lambert in [false, true] {
+    // The paper's scattering map, the same lit as a diffuse lobe, each taken as linear or
+    // decoded from sRGB.
+    for (scatter_lambert, scatter_srgb) in
+        [(false, false), (true, false), (false, true), (true, true)]
+    {
         let shading = ShadingParams {
             scatter_lambert,
+            scatter_srgb,
             ..SHADING
         };
         let leaf3 = |v: &Vec<f32>| {
@@ -633,7 +644,7 @@ fn pbr_matches_per_pixel_evaluation_and_stays_finite_at_extremes() {
                 let g = f64::from(got[3 * p + k]);
                 assert!(
                     (g - want[k]).abs() <= 1e-4 * want[k].abs().max(1.0),
-                    "lambert {scatter_lambert}, pixel {p} channel {k}: {g} vs {}",
+                    "lambert {scatter_lambert}, srgb {scatter_srgb}, pixel {p} channel {k}: {g} vs {}",
                     want[k]
                 );
             }
@@ -691,10 +702,28 @@ fn schlick_and_srgb_endpoints() {
         TensorData::new(vec![0.0f32, 0.001, 0.18, 1.0, 2.0], [5]),
         &device,
     );
-    let s = host_vec(pbr::linear_to_srgb(x));
+    let s = host_vec(pbr::linear_to_srgb(x.clone()));
     assert!((s[0]).abs() < 1e-7 && (s[1] - 0.01292).abs() < 1e-6);
     assert!((s[2] - 0.461_356).abs() < 1e-4, "{}", s[2]);
     assert!((s[3] - 1.0).abs() < 1e-6 && (s[4] - 1.0).abs() < 1e-6);
+    // Decoding undoes the encoding on [0, 1], matches the host version, and extends past 1.
+    let back = host_vec(pbr::srgb_to_linear(pbr::linear_to_srgb(x.clone())));
+    for (b, want) in back.iter().zip([0.0f32, 0.001, 0.18, 1.0, 1.0]) {
+        assert!(
+            (b - want).abs() < 1e-5 * want.max(1e-3) + 1e-7,
+            "{b} vs {want}"
+        );
+    }
+    let dec = host_vec(pbr::srgb_to_linear(x));
+    for (d, v) in dec.iter().zip([0.0f64, 0.001, 0.18, 1.0, 2.0]) {
+        let want = pbr::srgb_to_linear_value(v);
+        assert!(
+            (f64::from(*d) - want).abs() < 1e-5 * want.max(1.0),
+            "{d} vs {want}"
+        );
+    }
+    assert!(dec[4] > 4.0, "past 1 by the same power: {}", dec[4]);
+    assert_eq!(pbr::srgb_to_linear_value(-0.5), 0.0);
 }
 
 #[test]
