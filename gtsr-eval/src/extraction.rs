@@ -715,9 +715,10 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
             .map(|(k, (v, depth))| DepthMap {
                 camera: v.camera,
                 depth,
-                hull_depth: (config.carve_concavity_gate > 0.0)
-                    .then(|| hull_maps.get(k).map(Vec::as_slice))
-                    .flatten(),
+                hull_depth: hull_maps
+                    .get(k)
+                    .filter(|_| config.carve_concavity_gate > 0.0)
+                    .map(Vec::as_slice),
             })
             .collect();
         let voxel = config.carve_voxel.unwrap_or(masks.voxel);

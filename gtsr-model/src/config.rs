@@ -1091,34 +1091,30 @@ mod tests {
         }
     }
 
+    /// A switch that is off by default, reads as off from a configuration written before it
+    /// existed, and survives a round trip when on. `field` reads and writes it; `name` is its
+    /// key in `config.json`.
+    fn off_by_default_and_in_old_configs(name: &str, field: fn(&mut TrainConfig) -> &mut bool) {
+        let mut c = TrainConfig::for_iterations(Components::FULL, 100);
+        assert!(!*field(&mut c), "{name} on by default");
+        *field(&mut c) = true;
+        assert!(
+            !*field(&mut read_without(&c, &[name])),
+            "{name} on in an old config"
+        );
+        let json = serde_json::to_string(&c).unwrap();
+        let mut back = serde_json::from_str::<TrainConfig>(&json).unwrap();
+        assert!(*field(&mut back), "{name} lost on the round trip");
+    }
+
     #[test]
     fn the_lit_scattering_map_is_off_by_default_and_in_old_configs() {
-        let c = TrainConfig::for_iterations(Components::FULL, 100);
-        assert!(!c.scatter_lambert);
-        let mut on = c.clone();
-        on.scatter_lambert = true;
-        assert!(!read_without(&on, &["scatter_lambert"]).scatter_lambert);
-        let json = serde_json::to_string(&on).unwrap();
-        assert!(
-            serde_json::from_str::<TrainConfig>(&json)
-                .unwrap()
-                .scatter_lambert
-        );
+        off_by_default_and_in_old_configs("scatter_lambert", |c| &mut c.scatter_lambert);
     }
 
     #[test]
     fn the_scattering_map_decoding_is_off_by_default_and_in_old_configs() {
-        let c = TrainConfig::for_iterations(Components::FULL, 100);
-        assert!(!c.pbr_scatter_srgb);
-        let mut on = c.clone();
-        on.pbr_scatter_srgb = true;
-        assert!(!read_without(&on, &["pbr_scatter_srgb"]).pbr_scatter_srgb);
-        let json = serde_json::to_string(&on).unwrap();
-        assert!(
-            serde_json::from_str::<TrainConfig>(&json)
-                .unwrap()
-                .pbr_scatter_srgb
-        );
+        off_by_default_and_in_old_configs("pbr_scatter_srgb", |c| &mut c.pbr_scatter_srgb);
     }
 
     #[test]
