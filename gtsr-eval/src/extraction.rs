@@ -695,7 +695,8 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
             return Ok((bound_mesh.clone(), notes));
         }
         let maps = consistent_maps(config, inputs, &mut notes)?;
-        // The hull's own depth, for the concavity gate: the masks' mesh ray cast per view.
+        // The bound's own depth, for the concavity gate and the silhouette check: its mesh ray
+        // cast per view.
         let guard = config.carve_max_opened < 1.0;
         let hull_maps: Vec<Vec<f32>> = if config.carve_concavity_gate > 0.0 || guard {
             let caster = MeshRaycaster::new(bound_mesh, "the masks' mesh")?;
@@ -859,7 +860,7 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
 }
 
 /// How much of the masks a carved mesh leaves uncovered ([`MeshConfig::carve_max_opened`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default)]
 struct Opened {
     /// Pixels (mask at least 0.5) the bound covers and the carved mesh does not, all views.
     opened: usize,
