@@ -439,7 +439,10 @@ fn carve_rows(
             bounds: (lo, hi),
             coarse: false,
         };
-        let (mesh, _) = extract_mesh(&config, &inputs)?;
+        let (mesh, notes) = extract_mesh(&config, &inputs)?;
+        for note in &notes {
+            println!("  {note}");
+        }
         score(
             format!("masks carved by the true depth {bias:+} (gtsr-train's default extraction)"),
             &mesh,
