@@ -9,6 +9,8 @@
 //! this resolution: when it does not beat the masks alone, no method can beat the visual hull
 //! by its depth maps, however good they are. `--biases` shifts the true depth behind (or in
 //! front of) the surface, to see how near it rendered depth must come to add anything.
+//! With `--carve`, each carving row is preceded by the extraction's own log lines (the
+//! concavity gate's count, the culled faces, the silhouette check).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
