@@ -131,6 +131,16 @@ pub fn srgb_to_linear(v: f32) -> f32 {
     }
 }
 
+/// [`srgb_to_linear`] in f64, for host reference evaluations.
+#[inline]
+pub fn srgb_to_linear_f64(v: f64) -> f64 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
 /// Linear value to sRGB encoding (IEC 61966-2-1); input clamped to `[0, 1]`.
 #[inline]
 pub fn linear_to_srgb(v: f32) -> f32 {

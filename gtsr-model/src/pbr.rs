@@ -160,16 +160,6 @@ pub fn srgb_to_linear<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     high.mask_where(is_low, low)
 }
 
-/// Host version of [`srgb_to_linear`] for one value.
-pub fn srgb_to_linear_value(x: f64) -> f64 {
-    let x = x.max(0.0);
-    if x <= 0.040_45 {
-        x / 12.92
-    } else {
-        ((x + 0.055) / 1.055).powf(2.4)
-    }
-}
-
 /// Host version of [`shade`] for one pixel (f64), used by tests as the direct evaluation.
 #[allow(clippy::too_many_arguments)]
 pub fn shade_pixel(
@@ -212,7 +202,7 @@ pub fn shade_pixel(
                 1.0
             };
             let s = if p.scatter_srgb {
-                srgb_to_linear_value(s[k])
+                gtsr_data::image_io::srgb_to_linear_f64(s[k].max(0.0))
             } else {
                 s[k]
             };
