@@ -375,6 +375,13 @@ pub struct LossWeights {
     #[serde(default)]
     #[arg(long = "mask-band", id = "train.weights.mask_band", value_name = "PX", default_value_t = LossWeights::default().mask_band)]
     pub mask_band: u32,
+    /// With [`LossWeights::mask_band`], the band's pixels keep a hinge at 0.5 instead of being
+    /// left out ([`crate::losses::mask_l1_band_hinge`]): the rendered silhouette must cross 0.5
+    /// between the same pixel centres as the mask, at any edge width (not in the paper; off
+    /// by default).
+    #[serde(default)]
+    #[arg(skip)]
+    pub mask_band_hinge: bool,
     /// The photometric terms (C_SH and C_PBR) leave out the pixels within this many pixels of
     /// each view's silhouette as well ([`crate::losses::photometric_masked`]; 0: every pixel
     /// counts, as the paper; needs masks).
@@ -420,6 +427,7 @@ impl Default for LossWeights {
             opacity_entropy: 0.0,
             mask_deficit_only: false,
             mask_band: 0,
+            mask_band_hinge: false,
             photometric_band: 0,
             front_depth: 0.0,
             opacity_l1: 0.0,
@@ -869,6 +877,11 @@ impl TrainConfig {
         if self.densify.demote_every > 0 && !self.components.interior {
             bad.push("densify.demote_every needs the interior set".into());
         }
+        if self.weights.mask_band_hinge && self.weights.mask_band == 0 {
+            bad.push(
+                "weights.mask_band_hinge needs a weights.mask_band of at least 1 pixel".into(),
+            );
+        }
         let cap = crate::views::MASK_EDGE_CAP as u32;
         for (name, band) in [
             ("weights.mask_band", self.weights.mask_band),
@@ -1070,6 +1083,19 @@ mod tests {
             let e = bad.validate().unwrap_err();
             assert!(e.contains(name), "{e}");
         }
+        // The band's hinge: off by default, absent from older files, and only with a band.
+        assert!(!c.weights.mask_band_hinge);
+        assert!(
+            !read_without(&c, &["weights.mask_band_hinge"])
+                .weights
+                .mask_band_hinge
+        );
+        let mut hinge = c.clone();
+        hinge.weights.mask_band_hinge = true;
+        let e = hinge.validate().unwrap_err();
+        assert!(e.contains("weights.mask_band_hinge"), "{e}");
+        hinge.weights.mask_band = 1;
+        assert!(hinge.validate().is_ok());
     }
 
     #[test]

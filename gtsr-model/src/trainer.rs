@@ -647,6 +647,9 @@ impl Trainer {
         if let (Some(mask), true) = (&view.mask, w.mask > 0.0) {
             let term = match (&view.mask_edge_px, w.mask_band) {
                 _ if stage2 && w.mask_deficit_only => losses::mask_deficit(&coverage, mask),
+                (Some(edge), band) if band > 0 && w.mask_band_hinge => {
+                    losses::mask_l1_band_hinge(&coverage, mask, edge, f64::from(band))
+                }
                 (Some(edge), band) if band > 0 => {
                     losses::mask_l1_outside_band(&coverage, mask, edge, f64::from(band))
                 }

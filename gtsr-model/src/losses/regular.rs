@@ -64,6 +64,27 @@ pub fn mask_l1_outside_band(
     ((alpha.clone() - mask.clone()).abs() * outside_band(edge_px, band)).mean()
 }
 
+/// [`mask_l1_outside_band`], with the pixels within `band` pixels of the silhouette kept by a
+/// hinge at 0.5 instead of left out: there the rendered coverage need only lie on the mask's
+/// side of 0.5 (`max(0.5 - alpha, 0)` where the mask is at least 0.5, `max(alpha - 0.5, 0)`
+/// where it is below). The silhouette's 0.5 crossing stays between the mask's own pixel
+/// centres, while the width of the rendered edge (the splats' tails past a surface layer
+/// seen at a grazing angle) is free.
+pub fn mask_l1_band_hinge(
+    alpha: &Tensor<2>,
+    mask: &Tensor<2>,
+    edge_px: &Tensor<2>,
+    band: f64,
+) -> Tensor<1> {
+    let keep = outside_band(edge_px, band);
+    let in_band = keep.clone().neg() + 1.0;
+    let inside = mask.clone().greater_equal_elem(0.5).float();
+    let outside = inside.clone().neg() + 1.0;
+    let hinge = (alpha.clone().neg() + 0.5).clamp_min(0.0) * inside
+        + (alpha.clone() - 0.5).clamp_min(0.0) * outside;
+    ((alpha.clone() - mask.clone()).abs() * keep + hinge * in_band).mean()
+}
+
 /// Mean `max(mask - alpha, 0)`: only missing coverage inside the mask counts, not coverage
 /// spilling past it (which a Gaussian centred on the surface does in grazing views).
 pub fn mask_deficit(alpha: &Tensor<2>, mask: &Tensor<2>) -> Tensor<1> {

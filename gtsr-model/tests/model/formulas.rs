@@ -945,6 +945,30 @@ fn the_mask_band_leaves_out_the_pixels_beside_the_silhouette() {
 }
 
 #[test]
+fn the_band_hinge_asks_only_for_the_right_side_of_one_half() {
+    let device = Device::ndarray().autodiff();
+    let t = |v: Vec<f32>| Tensor::<2>::from_data(TensorData::new(v, [1, 6]), &device);
+    // inside x3 | outside x3; the band pixels are the middle four (edge distance <= 1 and 2
+    // for the next ones in, band 2 keeps only the ends).
+    let mask = t(vec![1.0, 1.0, 0.75, 0.25, 0.0, 0.0]);
+    let edge = t(vec![3.0, 2.0, 1.0, 1.0, 2.0, 3.0]);
+    // In the band: 0.375 inside (0.125 short of 0.5), 0.875 inside (fine), 0.625 outside
+    // (0.125 over), 0.25 outside (fine). Outside the band: L1 0.5 and 0.125.
+    let alpha = t(vec![0.5, 0.375, 0.875, 0.625, 0.25, 0.125]).require_grad();
+    let term = losses::mask_l1_band_hinge(&alpha, &mask, &edge, 2.0);
+    let want = (0.5 + 0.125 + 0.0 + 0.125 + 0.0 + 0.125) / 6.0;
+    assert!((term.clone().into_scalar::<f64>() - want).abs() < 1e-6);
+    let g = host_vec(alpha.grad(&term.backward()).expect("a gradient"));
+    let s = 1.0 / 6.0;
+    assert_eq!(g, vec![-s as f32, -s as f32, 0.0, s as f32, 0.0, s as f32]);
+    // A rendered edge wider than the mask's but crossing 0.5 at the same place costs nothing
+    // in the band.
+    let wide = t(vec![1.0, 0.55, 0.52, 0.48, 0.45, 0.0]);
+    let zero = losses::mask_l1_band_hinge(&wide, &mask, &edge, 2.0).into_scalar::<f64>();
+    assert!(zero.abs() < 1e-7, "{zero}");
+}
+
+#[test]
 fn the_photometric_band_leaves_out_the_pixels_it_is_told_to() {
     let device = Device::ndarray().autodiff();
     let mut rng = StdRng::seed_from_u64(7);
