@@ -78,10 +78,10 @@ pub fn mask_l1_band_hinge(
 ) -> Tensor<1> {
     let keep = outside_band(edge_px, band);
     let in_band = keep.clone().neg() + 1.0;
-    let inside = mask.clone().greater_equal_elem(0.5).float();
-    let outside = inside.clone().neg() + 1.0;
-    let hinge = (alpha.clone().neg() + 0.5).clamp_min(0.0) * inside
-        + (alpha.clone() - 0.5).clamp_min(0.0) * outside;
+    // -1 where the mask is at least 0.5, +1 below: `(alpha - 0.5) side` is how far the
+    // coverage lies on the wrong side of 0.5.
+    let side = mask.clone().greater_equal_elem(0.5).float() * -2.0 + 1.0;
+    let hinge = ((alpha.clone() - 0.5) * side).clamp_min(0.0);
     ((alpha.clone() - mask.clone()).abs() * keep + hinge * in_band).mean()
 }
 

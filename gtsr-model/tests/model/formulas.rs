@@ -948,8 +948,8 @@ fn the_mask_band_leaves_out_the_pixels_beside_the_silhouette() {
 fn the_band_hinge_asks_only_for_the_right_side_of_one_half() {
     let device = Device::ndarray().autodiff();
     let t = |v: Vec<f32>| Tensor::<2>::from_data(TensorData::new(v, [1, 6]), &device);
-    // inside x3 | outside x3; the band pixels are the middle four (edge distance <= 1 and 2
-    // for the next ones in, band 2 keeps only the ends).
+    // Three pixels inside the mask, three outside; with band 2 the middle four (edge
+    // distance 1 or 2) are in the band and only the two ends keep the L1 term.
     let mask = t(vec![1.0, 1.0, 0.75, 0.25, 0.0, 0.0]);
     let edge = t(vec![3.0, 2.0, 1.0, 1.0, 2.0, 3.0]);
     // In the band: 0.375 inside (0.125 short of 0.5), 0.875 inside (fine), 0.625 outside
