@@ -245,6 +245,44 @@ fn concavity_open(dm: &DepthMap, gate: f32, radius: usize) -> Vec<bool> {
         .collect()
 }
 
+/// How far the depth maps lie behind the masks' hull where both see the object, in each
+/// sample's pixel footprint (`(d - hull) fx / d`): its quartiles over every sample of every
+/// map with a depth and a hull depth. Where the masks' hull is flush with the object (most of
+/// a convex-ish object's surface) an unbiased depth lies at 0; a depth that runs behind the
+/// surface everywhere lies at its bias, which [`debias_depth`] takes out. `None` without a
+/// hull depth or a shared sample.
+pub fn hull_offset(depths: &[DepthMap]) -> Option<[f32; 3]> {
+    let mut offsets: Vec<f32> = depths
+        .iter()
+        .filter_map(|dm| dm.hull_depth.map(|h| (dm, h)))
+        .flat_map(|(dm, h)| {
+            dm.depth
+                .iter()
+                .zip(h)
+                .filter(|(d, hd)| d.is_finite() && **d > 0.0 && **hd > 0.0)
+                .map(move |(d, hd)| (d - hd) * dm.camera.fx / d)
+        })
+        .collect();
+    if offsets.is_empty() {
+        return None;
+    }
+    offsets.sort_unstable_by(f32::total_cmp);
+    let q = |p: f64| offsets[((offsets.len() - 1) as f64 * p) as usize];
+    Some([q(0.25), q(0.5), q(0.75)])
+}
+
+/// Moves each depth sample `footprints` of its own pixel footprint towards the camera
+/// (`d (1 - footprints / fx)`), in place; samples without depth stay as they are. With the
+/// median of [`hull_offset`] this takes out a bias that the depth shows over the whole object,
+/// so that the concavity gate and the carved surface measure from where the depth says the
+/// flush surface is.
+pub fn debias_depth(camera: &Camera, depth: &mut [f32], footprints: f32) {
+    let scale = 1.0 - footprints / camera.fx;
+    for d in depth.iter_mut().filter(|d| d.is_finite() && **d > 0.0) {
+        *d *= scale;
+    }
+}
+
 /// The depth at continuous pixel coordinates `uv`, interpolated bilinearly between the four
 /// pixel centres around it; `None` when one of them has no depth or lies outside the image.
 fn bilinear_depth(dm: &DepthMap, uv: glam::Vec2) -> Option<f32> {
@@ -447,4 +485,60 @@ pub(crate) fn carve_mesh_counted(
 ) -> Result<(TriMesh, Option<GateCount>)> {
     let (grid, count) = carve_field(masks, depths, min, max, voxel, settings)?;
     Ok((largest_component(&marching_cubes(&grid, 0.0)), count))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The offsets are read in each sample's own footprint, over the samples that have both
+    /// depths, and moving the maps by the median brings that median to 0.
+    #[test]
+    fn the_hull_offset_is_measured_in_footprints_and_taken_out() {
+        // 64 x 64 pixels, of which the first 16 carry depths.
+        let camera = Camera::look_at(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, Vec3::Y, 0.5, 64, 64);
+        let hull: Vec<f32> = (0..64 * 64)
+            .map(|k| if k < 16 { 2.0 + 0.01 * k as f32 } else { 0.0 })
+            .collect();
+        // Offsets 0..=11 footprints on 12 pixels; one pixel without depth, one without hull,
+        // two non-finite.
+        let mut depth: Vec<f32> = hull
+            .iter()
+            .enumerate()
+            .map(|(k, h)| h / (1.0 - k as f32 / camera.fx))
+            .collect();
+        depth[12] = 0.0;
+        depth[13] = f32::NAN;
+        depth[14] = f32::INFINITY;
+        let mut hull_missing = hull.clone();
+        hull_missing[15] = 0.0;
+        let map = |depth: &[f32]| -> Option<[f32; 3]> {
+            hull_offset(&[DepthMap {
+                camera: &camera,
+                depth,
+                hull_depth: Some(&hull_missing),
+            }])
+        };
+        let [q1, median, q3] = map(&depth).expect("twelve shared samples");
+        for (got, want) in [(q1, 2.0), (median, 5.0), (q3, 8.0)] {
+            assert!((got - want).abs() < 1e-3, "{got} against {want}");
+        }
+        debias_depth(&camera, &mut depth, median);
+        assert_eq!(depth[12], 0.0);
+        assert!(depth[13].is_nan());
+        let [q1, median, _] = map(&depth).unwrap();
+        // Footprints are read at the moved depth, a few per cent smaller here.
+        assert!(
+            median.abs() < 1e-3 && (q1 + 3.0).abs() < 0.15,
+            "{q1} {median}"
+        );
+        assert!(
+            hull_offset(&[DepthMap {
+                camera: &camera,
+                depth: &depth,
+                hull_depth: None,
+            }])
+            .is_none()
+        );
+    }
 }

@@ -27,7 +27,7 @@ pub mod timeline;
 pub mod tsdf;
 pub mod visible;
 
-pub use carve::{CarveSettings, DepthMap, carve_grid, carve_mesh};
+pub use carve::{CarveSettings, DepthMap, carve_grid, carve_mesh, debias_depth, hull_offset};
 pub use consistency::{ConsistencySettings, DepthView, filter_consistent};
 pub use depth::{DepthComparison, DepthMetrics, MeshDepth, MeshRaycaster};
 pub use error::{EvalError, Result};

@@ -358,16 +358,26 @@ fn the_extraction_recipe_carves_with_masks_and_fuses_a_tsdf_without() {
         bounds: (LO, HI),
         coarse: false,
     };
-    // The default without its culling: the masks carved where a view looks into a concavity,
-    // exactly `carve_mesh` on the masks' own grid with the masks' mesh ray cast as the hull's
-    // depth.
+    // The default without its culling: the depth moved forward by its median offset from the
+    // masks' mesh, then the masks carved where a view looks into a concavity, exactly
+    // `carve_mesh` on the masks' own grid with the masks' mesh ray cast as the hull's depth.
     let closed = MeshConfig {
         cull_unobserved: 0.0,
         ..MeshConfig::default()
     };
     let (carved, notes) = extract_mesh(&closed, &inputs).unwrap();
     let hulls = hull_depths(&s, &alone.mesh);
-    let maps = gated_maps(&s, &s.depths, &hulls);
+    let offset = gtsr_eval::hull_offset(&gated_maps(&s, &s.depths, &hulls)).expect("samples")[1];
+    let moved: Vec<Vec<f32>> = (s.cams.iter().zip(&s.depths))
+        .map(|(camera, depth)| {
+            let mut depth = depth.clone();
+            if offset > 0.0 {
+                gtsr_eval::debias_depth(camera, &mut depth, offset);
+            }
+            depth
+        })
+        .collect();
+    let maps = gated_maps(&s, &moved, &hulls);
     let direct = carve_mesh(
         &alone.borrowed(),
         &maps,

@@ -316,6 +316,9 @@ pub fn auto_components(e: &SceneEvidence) -> (Components, Vec<Decision>) {
     (c, d)
 }
 
+/// [`LossWeights::hull_depth`] when every training view has a mask ([`TrainConfig::for_views`]).
+pub const DEFAULT_HULL_DEPTH_WEIGHT: f64 = 0.03;
+
 /// Loss weights (names follow the paper). The terms that are not in the paper and were not
 /// kept on by default are set in a configuration file only (`--config`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
@@ -409,6 +412,13 @@ pub struct LossWeights {
     #[serde(default)]
     #[arg(skip)]
     pub smooth_scatter: f64,
+    /// Stage 2: the surface set's blended depth against the masks' bound's own depth, where the
+    /// two lie within 3 footprints of each other (not in the paper;
+    /// [`crate::losses::hull_depth`]). Default: 0.03 when every training view has a
+    /// mask, 0 (off) otherwise. Needs each view's [`crate::views::ViewTensors::hull_depth`].
+    #[serde(default)]
+    #[arg(long = "hull-depth-weight", id = "train.weights.hull_depth", value_name = "W", default_value_t = LossWeights::default().hull_depth, value_parser = parse_non_negative, hide_default_value = true)]
+    pub hull_depth: f64,
 }
 
 impl Default for LossWeights {
@@ -432,6 +442,7 @@ impl Default for LossWeights {
             front_depth: 0.0,
             opacity_l1: 0.0,
             smooth_scatter: 0.0,
+            hull_depth: 0.0,
         }
     }
 }
@@ -827,6 +838,7 @@ impl TrainConfig {
         if masked {
             c.init = Init::MaskCarved;
             c.weights.mask = 1.0;
+            c.weights.hull_depth = DEFAULT_HULL_DEPTH_WEIGHT;
         }
         c
     }
@@ -916,6 +928,7 @@ impl TrainConfig {
             ("weights.front_depth", self.weights.front_depth),
             ("weights.opacity_l1", self.weights.opacity_l1),
             ("weights.smooth_scatter", self.weights.smooth_scatter),
+            ("weights.hull_depth", self.weights.hull_depth),
         ] {
             if !v.is_finite() || v < 0.0 {
                 bad.push(format!("{name} must be finite and non-negative, got {v}"));
@@ -1096,6 +1109,26 @@ mod tests {
         assert!(e.contains("weights.mask_band_hinge"), "{e}");
         hinge.weights.mask_band = 1;
         assert!(hinge.validate().is_ok());
+    }
+
+    #[test]
+    fn the_hull_depth_term_is_on_with_masks_off_without_and_in_old_configs() {
+        let masked = TrainConfig::for_views(Components::FULL, 3000, 256 * 256, true);
+        assert_eq!(masked.weights.hull_depth, DEFAULT_HULL_DEPTH_WEIGHT);
+        const { assert!(DEFAULT_HULL_DEPTH_WEIGHT > 0.0) };
+        let unmasked = TrainConfig::for_views(Components::FULL, 3000, 256 * 256, false);
+        assert_eq!(unmasked.weights.hull_depth, 0.0);
+        // A run from before the term repeats without it.
+        assert_eq!(
+            read_without(&masked, &["weights.hull_depth"])
+                .weights
+                .hull_depth,
+            0.0
+        );
+        let mut bad = masked.clone();
+        bad.weights.hull_depth = -1.0;
+        let e = bad.validate().unwrap_err();
+        assert!(e.contains("weights.hull_depth"), "{e}");
     }
 
     #[test]

@@ -725,6 +725,12 @@ impl Trainer {
                         * w.front_depth,
                 );
             }
+            if let (Some(hull), true) = (&view.hull_depth, w.hull_depth > 0.0) {
+                add(
+                    "hull_depth",
+                    losses::hull_depth(&g.depth, hull, view.camera.fx, &valid) * w.hull_depth,
+                );
+            }
             if let Some(spread) = &g.spread {
                 add(
                     "spread",

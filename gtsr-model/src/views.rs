@@ -58,6 +58,9 @@ pub struct ViewTensors {
     /// to the nearest pixel on the other side of the mask's 0.5 level, capped at
     /// [`MASK_EDGE_CAP`] ([`mask_edge_distance`]).
     pub mask_edge_px: Option<Tensor<2>>,
+    /// `[H, W]` the masks' bound's own depth from this view (z, `0` where its ray misses
+    /// it), for [`crate::losses::hull_depth`]; `None` until the front end sets it.
+    pub hull_depth: Option<Tensor<2>>,
     /// `[H, W, 3]` camera-space pixel rays (z = 1).
     pub rays: Tensor<3>,
     /// `[H, W]` PGSR edge weight `(1 - g)^2`, `g` the min-max normalised image gradient.
@@ -157,6 +160,7 @@ impl ViewTensors {
             rgb: Tensor::from_data(TensorData::new(rgb.clone(), [h, w, 3]), device),
             mask: mask.map(|m| Tensor::from_data(TensorData::new(m, [h, w]), device)),
             mask_edge_px: edge_px.map(|d| Tensor::from_data(TensorData::new(d, [h, w]), device)),
+            hull_depth: None,
             rays: pixel_rays(&camera, device),
             edge_weight: Tensor::from_data(TensorData::new(edge, [h, w]), device),
             smooth_wx: Tensor::from_data(TensorData::new(wx, [h, w - 1]), device),

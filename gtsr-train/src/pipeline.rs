@@ -273,6 +273,34 @@ fn fusion_views(
     Ok(fusion.train)
 }
 
+/// Each view's [`ViewTensors::hull_depth`]: `caster`'s mesh (the masks' bound) ray cast from
+/// the view's camera at the view's own size (`hosts`: the same views, for their poses).
+fn attach_hull_depth(
+    views: &mut [ViewTensors],
+    hosts: &[gtsr_data::View],
+    caster: &gtsr_eval::MeshRaycaster,
+) {
+    for (v, host) in views.iter_mut().zip(hosts) {
+        let k = &v.camera;
+        let camera = gtsr_data::Camera {
+            world_to_camera: host.camera.world_to_camera,
+            fx: k.fx as f32,
+            fy: k.fy as f32,
+            cx: k.cx as f32,
+            cy: k.cy as f32,
+            width: k.width,
+            height: k.height,
+        };
+        let depth = caster.render(&camera).depth;
+        let shape = [k.height as usize, k.width as usize];
+        let device = v.rays.device();
+        v.hull_depth = Some(burn::tensor::Tensor::from_data(
+            burn::tensor::TensorData::new(depth, shape),
+            &device,
+        ));
+    }
+}
+
 /// With a mask on every training view: the masks at the dataset's own resolution (loaded again
 /// when training downscales), their mesh and, with `shading`, the views' linear radiance at
 /// that size (for the shading refinement), and with `edge_hull` the hull of their edges that
@@ -625,6 +653,24 @@ pub fn run(args: &Args) -> Result<Outcome> {
         edge_hull,
         mesh_config.edge_profile(),
     )?;
+    if trainer.config().weights.hull_depth > 0.0 && masks.is_none() {
+        println!("hull depth: off (it needs a mask on every training view)");
+    }
+    if let (true, Some(bound)) = (trainer.config().weights.hull_depth > 0.0, masks.as_ref()) {
+        let t0 = Instant::now();
+        let caster = gtsr_eval::MeshRaycaster::new(bound.bound_mesh(), "the masks' bound")?;
+        let mut views = trainer.views().to_vec();
+        attach_hull_depth(&mut views, &scene.train, &caster);
+        trainer.set_views(views)?;
+        if let Some(full) = full_views.as_mut() {
+            attach_hull_depth(full, &scene.train, &caster);
+        }
+        println!(
+            "hull depth: the masks' bound ray cast from the {} training views ({:.1} s)",
+            scene.train.len(),
+            t0.elapsed().as_secs_f64()
+        );
+    }
     let mesh_settings = MeshSettings {
         fusion_views: fusion_views(mesh_config.mesh_resolution, &data_dir, &opts, &scene)?,
         config: mesh_config,

@@ -151,6 +151,41 @@ pub fn front_depth(
     gap.sum() / count
 }
 
+/// How far apart, in pixel footprints, the blended depth and the masks' bound's depth may lie
+/// for [`hull_depth`] to count a pixel: farther, the view looks into a concavity the masks
+/// cannot see (or the depth is not a surface there yet), and the bound says nothing.
+pub const HULL_DEPTH_BAND: f64 = 3.0;
+
+/// Hull depth (not in the paper): the mean, over the `valid` pixels where the masks' bound
+/// has a depth `H > 0` and the blended depth `D` lies within [`HULL_DEPTH_BAND`] footprints
+/// of it, of `|D - H|` in footprints (`H / f`). Where the object is flush with the masks'
+/// hull (most of a convex-ish object's surface) the bound is the surface to a fraction of a
+/// footprint, and this asks the surface set's blended depth to be there rather than behind
+/// it; where the two lie farther apart it leaves the depth free. Which pixels count is
+/// decided on the detached depth.
+pub fn hull_depth(
+    depth: &Tensor<2>,
+    hull: &Tensor<2>,
+    focal: f64,
+    valid: &Tensor<2, Bool>,
+) -> Tensor<1> {
+    let hull = hull.clone().detach();
+    let scale = hull.clone().clamp_min(1e-6).recip() * focal;
+    let gap = (depth.clone() - hull.clone()) * scale;
+    let near = gap
+        .clone()
+        .detach()
+        .abs()
+        .lower_elem(HULL_DEPTH_BAND)
+        .bool_and(gap.clone().detach().is_finite());
+    let usable = valid
+        .clone()
+        .bool_and(hull.greater_elem(0.0))
+        .bool_and(near);
+    let count = usable.clone().float().sum().clamp_min(1.0);
+    gap.abs().mask_fill(usable.bool_not(), 0.0).sum() / count
+}
+
 /// Softening of [`layer_spread`]'s square root, in pixels: keeps its gradient bounded where
 /// the spread is 0.
 pub const LAYER_SPREAD_EPS_PX: f64 = 0.05;

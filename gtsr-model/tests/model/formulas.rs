@@ -1001,6 +1001,11 @@ fn the_photometric_band_leaves_out_the_pixels_it_is_told_to() {
     assert!((part - want).abs() < 1e-6, "{part} against {want}");
 }
 
+/// The gradient of the surface set's `kind` parameter on the host.
+fn surface_grad(model: &Model, kind: ParamKind, grads: &burn::tensor::Gradients) -> Vec<f32> {
+    host_vec(model.surface.req(kind).grad(grads).expect("a gradient"))
+}
+
 #[test]
 fn the_front_depth_term_makes_the_front_layer_opaque_and_moves_nothing() {
     let device = Device::ndarray().autodiff();
@@ -1020,13 +1025,7 @@ fn the_front_depth_term_makes_the_front_layer_opaque_and_moves_nothing() {
     let grads = loss.backward();
     // Descent raises the front layer's opacity most and fades the back layer (the middle one
     // rises a little: it takes weight from the back one).
-    let g_logit = host_vec(
-        model
-            .surface
-            .req(ParamKind::Opacity)
-            .grad(&grads)
-            .expect("an opacity gradient"),
-    );
+    let g_logit = surface_grad(&model, ParamKind::Opacity, &grads);
     assert!(
         g_logit[0] < 0.0 && g_logit[0] < g_logit[1] && g_logit[2] > 0.0,
         "{g_logit:?}"
@@ -1047,4 +1046,42 @@ fn the_front_depth_term_makes_the_front_layer_opaque_and_moves_nothing() {
         &valid,
     );
     assert_eq!(none.into_scalar::<f64>(), 0.0);
+}
+
+#[test]
+fn the_hull_depth_term_pulls_the_blend_onto_a_near_bound_and_ignores_a_far_one() {
+    let device = Device::ndarray().autodiff();
+    // Three facing layers of opacity 0.5 at z-depths 3.8, 4.0, 4.2: the blend lies at 3.914.
+    let (model, cam) = facing_stack(&[-0.2, 0.0, 0.2], &device);
+    let rays = pixel_rays(&cam, &device);
+    let g = model.render_depth(&cam, &rays).unwrap();
+    let valid = g.coverage.clone().greater_equal_elem(0.5);
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    // The bound at the front layer on the left half (0.99 footprints in front of the blend),
+    // 10 footprints in front on the right half (a concavity: left out), none on the top row.
+    let hull: Vec<f32> = (0..w * h)
+        .map(|p| match (p % w, p / w) {
+            (_, 0) => 0.0,
+            (x, _) if x < w / 2 => 3.8,
+            _ => 3.0,
+        })
+        .collect();
+    let hull = Tensor::<2>::from_data(TensorData::new(hull, [h, w]), &device);
+    let loss = losses::hull_depth(&g.depth, &hull, cam.fx, &valid);
+    let blend = host_vec(g.depth.clone())[12 * w + 4];
+    let want = f64::from(blend - 3.8) * cam.fx / 3.8;
+    let got = loss.clone().into_scalar::<f64>();
+    assert!(
+        (0.5..3.0).contains(&want) && (got - want).abs() < 1e-3 * want,
+        "{got} against {want} (blend {blend})"
+    );
+    let grads = loss.backward();
+    // Descent moves the layers towards the camera (-z) and makes the front one more opaque.
+    let g_means = surface_grad(&model, ParamKind::Means, &grads);
+    assert!((0..3).all(|i| g_means[3 * i + 2] > 0.0), "{g_means:?}");
+    let g_logit = surface_grad(&model, ParamKind::Opacity, &grads);
+    assert!(g_logit[0] < 0.0 && g_logit[2] > 0.0, "{g_logit:?}");
+    // Only the far bound: nothing counts.
+    let far = losses::hull_depth(&g.depth, &hull.clone().clamp_max(3.0), cam.fx, &valid);
+    assert_eq!(far.into_scalar::<f64>(), 0.0);
 }
