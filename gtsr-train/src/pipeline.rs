@@ -653,23 +653,24 @@ pub fn run(args: &Args) -> Result<Outcome> {
         edge_hull,
         mesh_config.edge_profile(),
     )?;
-    if trainer.config().weights.hull_depth > 0.0 && masks.is_none() {
-        println!("hull depth: off (it needs a mask on every training view)");
-    }
-    if let (true, Some(bound)) = (trainer.config().weights.hull_depth > 0.0, masks.as_ref()) {
-        let t0 = Instant::now();
-        let caster = gtsr_eval::MeshRaycaster::new(bound.bound_mesh(), "the masks' bound")?;
-        let mut views = trainer.views().to_vec();
-        attach_hull_depth(&mut views, &scene.train, &caster);
-        trainer.set_views(views)?;
-        if let Some(full) = full_views.as_mut() {
-            attach_hull_depth(full, &scene.train, &caster);
+    match (trainer.config().weights.hull_depth > 0.0, masks.as_ref()) {
+        (false, _) => {}
+        (true, None) => println!("hull depth: off (it needs a mask on every training view)"),
+        (true, Some(bound)) => {
+            let t0 = Instant::now();
+            let caster = gtsr_eval::MeshRaycaster::new(bound.bound_mesh(), "the masks' bound")?;
+            let mut views = trainer.views().to_vec();
+            attach_hull_depth(&mut views, &scene.train, &caster);
+            trainer.set_views(views)?;
+            if let Some(full) = full_views.as_mut() {
+                attach_hull_depth(full, &scene.train, &caster);
+            }
+            println!(
+                "hull depth: the masks' bound ray cast from the {} training views ({:.1} s)",
+                scene.train.len(),
+                t0.elapsed().as_secs_f64()
+            );
         }
-        println!(
-            "hull depth: the masks' bound ray cast from the {} training views ({:.1} s)",
-            scene.train.len(),
-            t0.elapsed().as_secs_f64()
-        );
     }
     let mesh_settings = MeshSettings {
         fusion_views: fusion_views(mesh_config.mesh_resolution, &data_dir, &opts, &scene)?,

@@ -138,13 +138,25 @@ pub fn front_depth(
     focal: f64,
     valid: &Tensor<2, Bool>,
 ) -> Tensor<1> {
-    let front = front.clone().detach();
+    footprint_gap(depth, front, focal, valid)
+}
+
+/// The mean over the `valid` pixels where the reference depth `R` (detached) is finite and
+/// positive of `|D - R|` in pixel footprints (`R / f`): the measure [`front_depth`] and
+/// [`hull_depth`] share.
+fn footprint_gap(
+    depth: &Tensor<2>,
+    reference: &Tensor<2>,
+    focal: f64,
+    valid: &Tensor<2, Bool>,
+) -> Tensor<1> {
+    let reference = reference.clone().detach();
     let usable = valid
         .clone()
-        .bool_and(front.clone().is_finite())
-        .bool_and(front.clone().greater_elem(0.0));
-    let scale = front.clone().clamp_min(1e-6).recip() * focal;
-    let gap = ((depth.clone() - front) * scale)
+        .bool_and(reference.clone().is_finite())
+        .bool_and(reference.clone().greater_elem(0.0));
+    let scale = reference.clone().clamp_min(1e-6).recip() * focal;
+    let gap = ((depth.clone() - reference) * scale)
         .abs()
         .mask_fill(usable.clone().bool_not(), 0.0);
     let count = usable.float().sum().clamp_min(1.0);
@@ -170,20 +182,12 @@ pub fn hull_depth(
     valid: &Tensor<2, Bool>,
 ) -> Tensor<1> {
     let hull = hull.clone().detach();
+    // A NaN gap compares false: such a pixel does not count.
     let scale = hull.clone().clamp_min(1e-6).recip() * focal;
-    let gap = (depth.clone() - hull.clone()) * scale;
-    let near = gap
-        .clone()
-        .detach()
+    let near = ((depth.clone().detach() - hull.clone()) * scale)
         .abs()
-        .lower_elem(HULL_DEPTH_BAND)
-        .bool_and(gap.clone().detach().is_finite());
-    let usable = valid
-        .clone()
-        .bool_and(hull.greater_elem(0.0))
-        .bool_and(near);
-    let count = usable.clone().float().sum().clamp_min(1.0);
-    gap.abs().mask_fill(usable.bool_not(), 0.0).sum() / count
+        .lower_elem(HULL_DEPTH_BAND);
+    footprint_gap(depth, &hull, focal, &valid.clone().bool_and(near))
 }
 
 /// Softening of [`layer_spread`]'s square root, in pixels: keeps its gradient bounded where
