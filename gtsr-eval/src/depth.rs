@@ -32,6 +32,46 @@ pub struct MeshDepth {
     pub depth: Vec<f32>,
     /// Camera-space unit normal of the triangle hit, facing the camera; zero on a miss.
     pub normal: Vec<Vec3>,
+    /// The camera's focal length in pixels (`fx`): a pixel's footprint at depth `z` is
+    /// `z / focal`.
+    pub focal: f32,
+}
+
+/// A pixel lies on an occluding edge of the truth ([`MeshDepth::occluding_edges`]) where the
+/// depth jumps by more than this many footprints to a 4-neighbour.
+pub const EDGE_FOOTPRINTS: f32 = 10.0;
+
+impl MeshDepth {
+    /// Per pixel, whether it lies on an occluding edge of the mesh: it hits the mesh and a
+    /// 4-neighbour misses it or hits it more than `footprints` pixel footprints nearer or
+    /// farther (a surface behind another, or the object's outline). Where a pixel straddles
+    /// such an edge, a rendering that blends what the pixel covers cannot match the one
+    /// surface its centre's ray meets.
+    pub fn occluding_edges(&self, footprints: f32) -> Vec<bool> {
+        let (w, h) = (self.width, self.height);
+        (0..w * h)
+            .map(|p| {
+                let z = self.depth[p];
+                if !(z.is_finite() && z > 0.0) {
+                    return false;
+                }
+                let limit = footprints * z / self.focal;
+                let (x, y) = (p % w, p / w);
+                [
+                    (x.wrapping_sub(1), y),
+                    (x + 1, y),
+                    (x, y.wrapping_sub(1)),
+                    (x, y + 1),
+                ]
+                .into_iter()
+                .filter(|&(nx, ny)| nx < w && ny < h)
+                .any(|(nx, ny)| {
+                    let zn = self.depth[ny * w + nx];
+                    !(zn.is_finite() && zn > 0.0) || (zn - z).abs() > limit
+                })
+            })
+            .collect()
+    }
 }
 
 /// A mesh prepared for ray casting (a BVH, built once for any number of cameras).
@@ -81,9 +121,13 @@ impl<'a> MeshRaycaster<'a> {
             height: h,
             depth,
             normal,
+            focal: camera.fx,
         }
     }
 }
+
+/// The probabilities of [`DepthMetrics::depth_signed_quantiles`].
+pub const DEPTH_QUANTILES: [f64; 5] = [0.05, 0.25, 0.5, 0.75, 0.95];
 
 /// Rendered depth and normals against the ground truth, over the pixels where both exist.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -95,6 +139,22 @@ pub struct DepthMetrics {
     /// Mean `depth - true depth`: positive when the rendered surface lies behind the true one
     /// (inside the object, seen from the camera).
     pub depth_mean_signed: f64,
+    /// Quantiles of `depth - true depth` at [`DEPTH_QUANTILES`]: where the signed mean comes
+    /// from (the body of the pixels or a tail, such as pixels that straddle an occluding edge).
+    #[serde(default)]
+    pub depth_signed_quantiles: [f64; 5],
+    /// Mean `depth - true depth` over the pixels between the first and the last of
+    /// [`DEPTH_QUANTILES`] (the signed mean without its tails).
+    #[serde(default)]
+    pub depth_mean_signed_inner: f64,
+    /// The share of the pixels compared that lie on an occluding edge of the truth
+    /// ([`MeshDepth::occluding_edges`] at [`EDGE_FOOTPRINTS`]).
+    #[serde(default)]
+    pub edge_share: f64,
+    /// Mean `depth - true depth` over the other pixels (those off the truth's occluding
+    /// edges); `None` when every pixel compared lies on one.
+    #[serde(default)]
+    pub depth_mean_signed_off_edges: Option<f64>,
     /// Mean angle between the rendered and the true normal, degrees.
     pub normal_mean_deg: f64,
     /// Median of that angle, degrees.
@@ -110,6 +170,8 @@ pub struct DepthMetrics {
 #[derive(Clone, Debug, Default)]
 pub struct DepthComparison {
     depth_err: Vec<f32>,
+    /// Per entry of `depth_err`, whether its pixel lies on an occluding edge of the truth.
+    at_edge: Vec<bool>,
     normal_deg: Vec<f32>,
     truth_pixels: usize,
 }
@@ -147,6 +209,7 @@ impl DepthComparison {
         if select.len() != n {
             return Err(EvalError::size("pixel selection", size, select.len()));
         }
+        let edges = truth.occluding_edges(EDGE_FOOTPRINTS);
         for p in 0..n {
             let t = truth.depth[p];
             if !(select[p] && t.is_finite() && t > 0.0) {
@@ -160,6 +223,7 @@ impl DepthComparison {
                 continue;
             }
             self.depth_err.push(d - t);
+            self.at_edge.push(edges[p]);
             let cos = (nv / nl).dot(truth.normal[p]).clamp(-1.0, 1.0);
             self.normal_deg.push(cos.acos().to_degrees());
         }
@@ -182,10 +246,27 @@ impl DepthComparison {
             }
         };
         let abs: Vec<f32> = self.depth_err.iter().map(|e| e.abs()).collect();
+        let mut signed = self.depth_err.clone();
+        signed.sort_by(f32::total_cmp);
+        // Nearest rank: the smallest error with at least a share `q` of the pixels at or below it.
+        let rank = |q: f64| ((q * k as f64).ceil() as usize).clamp(1, k) - 1;
+        let quantiles = DEPTH_QUANTILES.map(|q| signed[rank(q)] as f64);
+        let inner = &signed[rank(DEPTH_QUANTILES[0])..=rank(DEPTH_QUANTILES[4])];
+        let (off_sum, off_n) = self
+            .depth_err
+            .iter()
+            .zip(&self.at_edge)
+            .filter(|(_, edge)| !**edge)
+            .fold((0.0f64, 0usize), |(s, n), (e, _)| (s + *e as f64, n + 1));
         Some(DepthMetrics {
             depth_mean_abs: mean(&abs),
             depth_median_abs: median(abs),
             depth_mean_signed: mean(&self.depth_err),
+            depth_signed_quantiles: quantiles,
+            depth_mean_signed_inner: inner.iter().map(|&e| e as f64).sum::<f64>()
+                / inner.len() as f64,
+            edge_share: (k - off_n) as f64 / k as f64,
+            depth_mean_signed_off_edges: (off_n > 0).then(|| off_sum / off_n as f64),
             normal_mean_deg: mean(&self.normal_deg),
             normal_median_deg: median(self.normal_deg.clone()),
             pixels: k,
@@ -293,6 +374,74 @@ mod tests {
         assert!((m.depth_median_abs - 0.02).abs() < 1e-6);
         assert!((m.normal_mean_deg - 10.0).abs() < 1e-3);
         assert!((m.normal_median_deg - 10.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn a_tail_moves_the_signed_mean_but_not_the_quantiles_or_the_inner_mean() {
+        let mesh = square(2.0);
+        let cam = camera_on_axis(10);
+        let truth = MeshRaycaster::new(&mesh, "square").unwrap().render(&cam);
+        // Errors -0.050, -0.049, ..., +0.049 in a shuffled pixel order; then the largest
+        // replaced by a far tail (+1, a pixel that straddles an occluding edge).
+        let err = |i: usize| ((i * 37) % 100) as f32 * 1e-3 - 0.05;
+        let normal: Vec<f32> = (0..100).flat_map(|_| [0.0, 0.0, -1.0]).collect();
+        let select = vec![true; 100];
+        let metrics = |tail: bool| {
+            let depth: Vec<f32> = (0..100)
+                .map(|i| {
+                    let e = if tail && err(i) > 0.0485 { 1.0 } else { err(i) };
+                    truth.depth[i] + e
+                })
+                .collect();
+            let mut c = DepthComparison::new();
+            c.add(&truth, &depth, &normal, &select).unwrap();
+            c.finish().unwrap()
+        };
+        let (plain, tailed) = (metrics(false), metrics(true));
+        for m in [&plain, &tailed] {
+            let want = [-0.046, -0.026, -0.001, 0.024, 0.044];
+            for (q, w) in m.depth_signed_quantiles.iter().zip(want) {
+                assert!((q - w).abs() < 1e-5, "{:?}", m.depth_signed_quantiles);
+            }
+            assert!((m.depth_mean_signed_inner + 0.001).abs() < 1e-5);
+        }
+        assert!((plain.depth_mean_signed + 0.0005).abs() < 1e-5);
+        assert!((tailed.depth_mean_signed - plain.depth_mean_signed - 0.00951).abs() < 1e-5);
+    }
+
+    #[test]
+    fn the_outline_is_an_occluding_edge_and_its_errors_are_kept_apart() {
+        let mesh = crate::mesh::icosphere(Vec3::new(0.0, 0.0, 3.0), 0.5, 5);
+        let cam = camera_on_axis(32);
+        let truth = MeshRaycaster::new(&mesh, "sphere").unwrap().render(&cam);
+        let edges = truth.occluding_edges(EDGE_FOOTPRINTS);
+        let hit = |p: usize| truth.depth[p] > 0.0;
+        let n = 32 * 32;
+        assert!(!edges[16 * 32 + 16] && !edges[0]);
+        // The edge pixels are the sphere's outline: hit, with a neighbour that misses.
+        let outline: Vec<usize> = (0..n)
+            .filter(|&p| {
+                let (x, y) = (p % 32, p / 32);
+                hit(p)
+                    && [(x - 1, y), (x + 1, y), (x, y - 1), (x, y + 1)]
+                        .iter()
+                        .any(|&(i, j)| !hit(j * 32 + i))
+            })
+            .collect();
+        assert!(outline.len() > 20);
+        assert_eq!(outline, (0..n).filter(|&p| edges[p]).collect::<Vec<_>>());
+        // A rendering exact inside and 0.3 in front on the outline.
+        let depth: Vec<f32> = (0..n)
+            .map(|p| truth.depth[p] - if edges[p] { 0.3 } else { 0.0 })
+            .collect();
+        let normal: Vec<f32> = truth.normal.iter().flat_map(|v| v.to_array()).collect();
+        let mut c = DepthComparison::new();
+        c.add(&truth, &depth, &normal, &vec![true; n]).unwrap();
+        let m = c.finish().unwrap();
+        let share = outline.len() as f64 / m.pixels as f64;
+        assert!((m.edge_share - share).abs() < 1e-12);
+        assert!(m.depth_mean_signed_off_edges.unwrap().abs() < 1e-6);
+        assert!((m.depth_mean_signed + 0.3 * share).abs() < 1e-5);
     }
 
     #[test]

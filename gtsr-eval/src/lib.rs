@@ -29,7 +29,7 @@ pub mod visible;
 
 pub use carve::{CarveSettings, DepthMap, carve_grid, carve_mesh, debias_depth, hull_offset};
 pub use consistency::{ConsistencySettings, DepthView, filter_consistent};
-pub use depth::{DepthComparison, DepthMetrics, MeshDepth, MeshRaycaster};
+pub use depth::{DEPTH_QUANTILES, DepthComparison, DepthMetrics, MeshDepth, MeshRaycaster};
 pub use error::{EvalError, Result};
 pub use extraction::{
     DepthGeometry, EdgeHull, Fusion, FusionInputs, FusionView, MasksAlone, MeshConfig,

@@ -114,6 +114,10 @@ pub struct ReportRow {
     /// Mean signed depth error (positive: behind the true surface; printed times 1e3).
     #[serde(default)]
     pub depth_bias: Option<f64>,
+    /// The same off the truth's occluding edges
+    /// ([`crate::DepthMetrics::depth_mean_signed_off_edges`]).
+    #[serde(default)]
+    pub depth_bias_off_edges: Option<f64>,
     /// Mean angle between rendered and true normals, degrees.
     #[serde(default)]
     pub normal_err_deg: Option<f64>,
@@ -155,19 +159,20 @@ pub fn format_duration(seconds: f64) -> String {
 }
 
 /// A GitHub-flavoured markdown table: method, scene, chamfer x 1e3 (2 decimals), the same
-/// against the whole ground truth, the mean distance on the hull-blind part x 1e3 (2), F-score (3), depth error and bias x 1e3 (2), normal error
+/// against the whole ground truth, the mean distance on the hull-blind part x 1e3 (2), F-score
+/// (3), depth error, bias and bias off the truth's occluding edges x 1e3 (2), normal error
 /// (degrees, 1), PSNR (2), SSIM (4), time (`h:mm:ss`), Gaussians, tile-splat pairs per step
 /// (thousands, 1).
 pub fn markdown_table(rows: &[ReportRow]) -> String {
     let mut s = String::from(
         "| method | scene | chamfer x1e3 | chamfer x1e3, whole GT | hull-blind x1e3 | F-score | \
-         depth err x1e3 | depth bias x1e3 | normal err (deg) | PSNR | SSIM | time | Gaussians | \
-         tile-splats/step |\n\
-         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+         depth err x1e3 | depth bias x1e3 | bias off edges x1e3 | normal err (deg) | PSNR | SSIM | \
+         time | Gaussians | tile-splats/step |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
         s.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
             cell(&r.method),
             cell(&r.scene),
             opt(r.chamfer, |v| format!("{:.2}", v * 1e3)),
@@ -176,6 +181,7 @@ pub fn markdown_table(rows: &[ReportRow]) -> String {
             opt(r.fscore, |v| format!("{v:.3}")),
             opt(r.depth_err, |v| format!("{:.2}", v * 1e3)),
             opt(r.depth_bias, |v| format!("{:+.2}", v * 1e3)),
+            opt(r.depth_bias_off_edges, |v| format!("{:+.2}", v * 1e3)),
             opt(r.normal_err_deg, |v| format!("{v:.1}")),
             opt(r.psnr, |v| format!("{v:.2}")),
             opt(r.ssim, |v| format!("{v:.4}")),

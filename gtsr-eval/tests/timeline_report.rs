@@ -152,6 +152,7 @@ fn markdown_table_formats_and_escapes() {
             fscore: Some(0.98765),
             depth_err: Some(0.001234),
             depth_bias: Some(-0.0004),
+            depth_bias_off_edges: Some(0.00012),
             normal_err_deg: Some(7.26),
             psnr: Some(45.281),
             ssim: Some(0.99612),
@@ -171,12 +172,12 @@ fn markdown_table_formats_and_escapes() {
     assert_eq!(lines.len(), 4);
     assert_eq!(
         lines[2],
-        "| GTSR | bear\\|1 | 0.71 | 15.20 | 48.10 | 0.988 | 1.23 | -0.40 | 7.3 | 45.28 | 0.9961 | 2:30:00 | \
+        "| GTSR | bear\\|1 | 0.71 | 15.20 | 48.10 | 0.988 | 1.23 | -0.40 | +0.12 | 7.3 | 45.28 | 0.9961 | 2:30:00 | \
          312000 | 42.6k |"
     );
     assert_eq!(
         lines[3],
-        "| PGSR | bear | - | - | - | - | - | - | - | - | - | 2:05 | - | - |"
+        "| PGSR | bear | - | - | - | - | - | - | - | - | - | - | 2:05 | - | - |"
     );
     assert_eq!(format_duration(59.6), "1:00");
     let dir = tempfile::tempdir().unwrap();

@@ -608,6 +608,16 @@ pub fn finish(
             d.normal_median_deg,
             d.normal_mean_deg
         );
+        let q = d.depth_signed_quantiles.map(|v| format!("{:+.2}", v * 1e3));
+        println!(
+            "  signed depth error x1e3 at 5/25/50/75/95 %: {}; mean signed within 5-95 %: {:+.2}; \
+             {:.1} % of the pixels on the truth's occluding edges, mean signed off them {}",
+            q.join(" / "),
+            d.depth_mean_signed_inner * 1e3,
+            100.0 * d.edge_share,
+            d.depth_mean_signed_off_edges
+                .map_or("-".into(), |v| format!("{:+.2}", v * 1e3))
+        );
     }
     Ok(())
 }

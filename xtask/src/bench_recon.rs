@@ -100,6 +100,7 @@ fn geometry_row(m: &Metrics, label: String, scene: &str) -> ReportRow {
         fscore: m.mesh.as_ref().map(|x| x.fscore),
         depth_err: m.test_depth.map(|d| d.depth_median_abs),
         depth_bias: m.test_depth.map(|d| d.depth_mean_signed),
+        depth_bias_off_edges: m.test_depth.and_then(|d| d.depth_mean_signed_off_edges),
         normal_err_deg: m.test_depth.map(|d| d.normal_mean_deg),
         ..ReportRow::default()
     }
