@@ -62,6 +62,11 @@ pub struct RunMetrics {
     /// Rendered test-view depth and normals against the ground-truth mesh's.
     #[serde(default)]
     pub test_depth: Option<DepthMetrics>,
+    /// The same against the ground truth averaged over each pixel's area
+    /// ([`crate::MeshRaycaster::render_area`]): what a rendering that blends a pixel's
+    /// footprint can be held to at occluding edges.
+    #[serde(default)]
+    pub test_depth_area: Option<DepthMetrics>,
     /// Vertices of the mesh.
     #[serde(default)]
     pub mesh_vertices: usize,

@@ -419,6 +419,13 @@ pub struct LossWeights {
     #[serde(default)]
     #[arg(long = "hull-depth-weight", id = "train.weights.hull_depth", value_name = "W", default_value_t = LossWeights::default().hull_depth, value_parser = parse_non_negative, hide_default_value = true)]
     pub hull_depth: f64,
+    /// With [`LossWeights::hull_depth`]: the masks' bound gives no depth at the pixels where
+    /// its own depth jumps by more than this many footprints to a 4-neighbour or a neighbour
+    /// misses it (its outline and occluding edges, where a pixel's blend mixes two surfaces);
+    /// 0: every pixel the bound covers counts.
+    #[serde(default)]
+    #[arg(skip)]
+    pub hull_depth_edges: f64,
 }
 
 impl Default for LossWeights {
@@ -443,6 +450,7 @@ impl Default for LossWeights {
             opacity_l1: 0.0,
             smooth_scatter: 0.0,
             hull_depth: 0.0,
+            hull_depth_edges: 0.0,
         }
     }
 }
@@ -929,6 +937,7 @@ impl TrainConfig {
             ("weights.opacity_l1", self.weights.opacity_l1),
             ("weights.smooth_scatter", self.weights.smooth_scatter),
             ("weights.hull_depth", self.weights.hull_depth),
+            ("weights.hull_depth_edges", self.weights.hull_depth_edges),
         ] {
             if !v.is_finite() || v < 0.0 {
                 bad.push(format!("{name} must be finite and non-negative, got {v}"));
@@ -1118,6 +1127,18 @@ mod tests {
         const { assert!(DEFAULT_HULL_DEPTH_WEIGHT > 0.0) };
         let unmasked = TrainConfig::for_views(Components::FULL, 3000, 256 * 256, false);
         assert_eq!(unmasked.weights.hull_depth, 0.0);
+        // The bound's occluding edges count unless a config leaves them out.
+        assert_eq!(masked.weights.hull_depth_edges, 0.0);
+        assert_eq!(
+            read_without(&masked, &["weights.hull_depth_edges"])
+                .weights
+                .hull_depth_edges,
+            0.0
+        );
+        let mut edges = masked.clone();
+        edges.weights.hull_depth_edges = f64::NAN;
+        let e = edges.validate().unwrap_err();
+        assert!(e.contains("weights.hull_depth_edges"), "{e}");
         // A run from before the term repeats without it.
         assert_eq!(
             read_without(&masked, &["weights.hull_depth"])

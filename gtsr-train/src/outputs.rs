@@ -54,6 +54,9 @@ pub struct Evaluation {
     /// Rendered depth and normals of the test views against the ground-truth mesh, inside the
     /// masks ([`test_view_geometry`]).
     pub depth: Option<DepthMetrics>,
+    /// The same against the ground truth averaged over each pixel's area
+    /// ([`AREA_RAYS`]^2 rays per pixel); only for the final (not coarse) evaluation.
+    pub depth_area: Option<DepthMetrics>,
     /// The extracted mesh.
     pub extracted: Option<TriMesh>,
     /// Seconds spent evaluating.
@@ -308,9 +311,9 @@ pub fn evaluate(
         }
         _ => (None, None, None),
     };
-    let depth = match gt {
-        Some(gt) => test_view_geometry(&model, tests, scene, gt, settings)?,
-        _ => None,
+    let (depth, depth_area) = match gt {
+        Some(gt) => test_view_geometry(&model, tests, scene, gt, settings, !coarse)?,
+        _ => (None, None),
     };
     let avg = |x: f64, k: usize| if k > 0 { Some(x / k as f64) } else { None };
     Ok(Evaluation {
@@ -321,14 +324,19 @@ pub fn evaluate(
         mesh,
         mesh_whole_gt,
         depth,
+        depth_area,
         extracted,
         seconds: t0.elapsed().as_secs_f64(),
     })
 }
 
+/// Rays per pixel side of the area-averaged ground truth ([`MeshRaycaster::render_area`]).
+pub const AREA_RAYS: u32 = 4;
+
 /// The surface Gaussians' unbiased depth and blended normal on the test views against the
 /// ground-truth mesh's (ray cast through each pixel centre), over the pixels inside the
-/// ground-truth mask (all pixels without one) that the surface covers (coverage >= 0.5).
+/// ground-truth mask (all pixels without one) that the surface covers (coverage >= 0.5);
+/// with `area`, also against the ground truth averaged over each pixel's area.
 /// The depth is the raw render, before the grazing and edge filters of the fusion.
 fn test_view_geometry(
     model: &Model,
@@ -336,9 +344,11 @@ fn test_view_geometry(
     scene: &Scene,
     gt: &TriMesh,
     settings: &MeshSettings,
-) -> Result<Option<DepthMetrics>> {
+    area: bool,
+) -> Result<(Option<DepthMetrics>, Option<DepthMetrics>)> {
     let caster = MeshRaycaster::new(gt, "ground-truth mesh")?;
     let mut cmp = DepthComparison::new();
+    let mut cmp_area = DepthComparison::new();
     for (v, data) in tests.iter().zip(&scene.test) {
         let truth = caster.render(&data.camera);
         let g = fusion_geometry(model, &v.camera, &v.rays, settings)?;
@@ -355,8 +365,14 @@ fn test_view_geometry(
         };
         cmp.add(&truth, &depth, &normal, &select)
             .with_context(|| format!("comparing the depth of test view {}", data.name))?;
+        if area {
+            let truth = caster.render_area(&data.camera, AREA_RAYS)?;
+            cmp_area
+                .add(&truth, &depth, &normal, &select)
+                .with_context(|| format!("comparing the depth of test view {}", data.name))?;
+        }
     }
-    Ok(cmp.finish())
+    Ok((cmp.finish(), if area { cmp_area.finish() } else { None }))
 }
 
 /// Writes `value` as pretty JSON, atomically.
@@ -519,6 +535,7 @@ pub fn finish(
         mesh_whole_gt: e.mesh_whole_gt,
         masks_alone,
         test_depth: e.depth,
+        test_depth_area: e.depth_area,
         mesh_vertices: mesh.positions.len(),
         mesh_triangles: mesh.triangles.len(),
     };
@@ -615,6 +632,17 @@ pub fn finish(
             q.join(" / "),
             d.depth_mean_signed_inner * 1e3,
             100.0 * d.edge_share,
+            d.depth_mean_signed_off_edges
+                .map_or("-".into(), |v| format!("{:+.2}", v * 1e3))
+        );
+    }
+    if let Some(d) = &e.depth_area {
+        println!(
+            "  against the truth averaged over each pixel ({AREA_RAYS}x{AREA_RAYS} rays): depth \
+             error x1e3 median {:.2}, mean {:.2}, mean signed {:+.2}; off the occluding edges {}",
+            d.depth_median_abs * 1e3,
+            d.depth_mean_abs * 1e3,
+            d.depth_mean_signed * 1e3,
             d.depth_mean_signed_off_edges
                 .map_or("-".into(), |v| format!("{:+.2}", v * 1e3))
         );

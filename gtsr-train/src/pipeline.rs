@@ -274,11 +274,14 @@ fn fusion_views(
 }
 
 /// Each view's [`ViewTensors::hull_depth`]: `caster`'s mesh (the masks' bound) ray cast from
-/// the view's camera at the view's own size (`hosts`: the same views, for their poses).
+/// the view's camera at the view's own size (`hosts`: the same views, for their poses),
+/// without the pixels on its occluding edges at `edges` footprints (0: all kept;
+/// [`gtsr_eval::MeshDepth::occluding_edges`]).
 fn attach_hull_depth(
     views: &mut [ViewTensors],
     hosts: &[gtsr_data::View],
     caster: &gtsr_eval::MeshRaycaster,
+    edges: f32,
 ) {
     for (v, host) in views.iter_mut().zip(hosts) {
         let k = &v.camera;
@@ -291,7 +294,15 @@ fn attach_hull_depth(
             width: k.width,
             height: k.height,
         };
-        let depth = caster.render(&camera).depth;
+        let md = caster.render(&camera);
+        let mut depth = md.depth.clone();
+        if edges > 0.0 {
+            for (d, e) in depth.iter_mut().zip(md.occluding_edges(edges)) {
+                if e {
+                    *d = 0.0;
+                }
+            }
+        }
         let shape = [k.height as usize, k.width as usize];
         let device = v.rays.device();
         v.hull_depth = Some(burn::tensor::Tensor::from_data(
@@ -660,10 +671,11 @@ pub fn run(args: &Args) -> Result<Outcome> {
             let t0 = Instant::now();
             let caster = gtsr_eval::MeshRaycaster::new(bound.bound_mesh(), "the masks' bound")?;
             let mut views = trainer.views().to_vec();
-            attach_hull_depth(&mut views, &scene.train, &caster);
+            let edges = trainer.config().weights.hull_depth_edges as f32;
+            attach_hull_depth(&mut views, &scene.train, &caster, edges);
             trainer.set_views(views)?;
             if let Some(full) = full_views.as_mut() {
-                attach_hull_depth(full, &scene.train, &caster);
+                attach_hull_depth(full, &scene.train, &caster, edges);
             }
             println!(
                 "hull depth: the masks' bound ray cast from the {} training views ({:.1} s)",
