@@ -96,33 +96,7 @@ impl<'a> MeshRaycaster<'a> {
     /// The mesh's depth and normal maps seen from `camera` (one ray through each pixel
     /// centre, first hit). Parallel over rows.
     pub fn render(&self, camera: &Camera) -> MeshDepth {
-        let (w, h) = (camera.width as usize, camera.height as usize);
-        let m = camera.world_to_camera;
-        let mut depth = vec![0.0; w * h];
-        let mut normal = vec![Vec3::ZERO; w * h];
-        depth
-            .par_chunks_mut(w.max(1))
-            .zip(normal.par_chunks_mut(w.max(1)))
-            .enumerate()
-            .for_each(|(j, (depth, normal))| {
-                for i in 0..w {
-                    let (o, d) = camera.pixel_ray(i as u32, j as u32);
-                    if let Some((t, n)) = self.target.first_hit(o, d) {
-                        let z = m.transform_point3(o + d * t).z;
-                        if z > 0.0 && z.is_finite() {
-                            depth[i] = z;
-                            normal[i] = m.transform_vector3(n).normalize_or_zero();
-                        }
-                    }
-                }
-            });
-        MeshDepth {
-            width: w,
-            height: h,
-            depth,
-            normal,
-            focal: camera.fx,
-        }
+        self.render_grid(camera, 1)
     }
 
     /// The mesh's depth and normal maps averaged over each pixel's area: `n x n` rays per
@@ -138,6 +112,12 @@ impl<'a> MeshRaycaster<'a> {
                 "render_area needs at least one ray per pixel".into(),
             ));
         }
+        Ok(self.render_grid(camera, n))
+    }
+
+    /// [`MeshRaycaster::render_area`] for `n >= 1` (`n = 1`: one ray through each pixel
+    /// centre).
+    fn render_grid(&self, camera: &Camera, n: u32) -> MeshDepth {
         let (w, h) = (camera.width as usize, camera.height as usize);
         let m = camera.world_to_camera;
         let mut depth = vec![0.0; w * h];
@@ -171,13 +151,13 @@ impl<'a> MeshRaycaster<'a> {
                     }
                 }
             });
-        Ok(MeshDepth {
+        MeshDepth {
             width: w,
             height: h,
             depth,
             normal,
             focal: camera.fx,
-        })
+        }
     }
 }
 

@@ -1129,27 +1129,21 @@ mod tests {
         assert_eq!(unmasked.weights.hull_depth, 0.0);
         // The bound's occluding edges count unless a config leaves them out.
         assert_eq!(masked.weights.hull_depth_edges, 0.0);
-        assert_eq!(
-            read_without(&masked, &["weights.hull_depth_edges"])
-                .weights
-                .hull_depth_edges,
-            0.0
-        );
-        let mut edges = masked.clone();
-        edges.weights.hull_depth_edges = f64::NAN;
-        let e = edges.validate().unwrap_err();
-        assert!(e.contains("weights.hull_depth_edges"), "{e}");
-        // A run from before the term repeats without it.
-        assert_eq!(
-            read_without(&masked, &["weights.hull_depth"])
-                .weights
-                .hull_depth,
-            0.0
-        );
-        let mut bad = masked.clone();
-        bad.weights.hull_depth = -1.0;
-        let e = bad.validate().unwrap_err();
-        assert!(e.contains("weights.hull_depth"), "{e}");
+        // A run from before the term (or before the edges' setting) repeats without it, and
+        // both settings must be finite and non-negative.
+        type Field = fn(&mut LossWeights) -> &mut f64;
+        let fields: [(&str, Field); 2] = [
+            ("weights.hull_depth", |w| &mut w.hull_depth),
+            ("weights.hull_depth_edges", |w| &mut w.hull_depth_edges),
+        ];
+        for (name, field) in fields {
+            let mut old = read_without(&masked, &[name]);
+            assert_eq!(*field(&mut old.weights), 0.0, "{name}");
+            let mut bad = masked.clone();
+            *field(&mut bad.weights) = -1.0;
+            let e = bad.validate().unwrap_err();
+            assert!(e.contains(name), "{e}");
+        }
     }
 
     #[test]
