@@ -677,6 +677,26 @@ pub fn prepare_depth(
     Ok(())
 }
 
+/// Each view's depth map for the carving, with the bound's own depth (`hulls`, one per view;
+/// none when empty) where `with_hull`.
+fn depth_maps<'a>(
+    views: &'a [FusionView<'a>],
+    maps: &'a [Vec<f32>],
+    hulls: &'a [Vec<f32>],
+    with_hull: bool,
+) -> Vec<DepthMap<'a>> {
+    views
+        .iter()
+        .zip(maps)
+        .enumerate()
+        .map(|(k, (v, depth))| DepthMap {
+            camera: v.camera,
+            depth,
+            hull_depth: hulls.get(k).filter(|_| with_hull).map(Vec::as_slice),
+        })
+        .collect()
+}
+
 /// The mesh of `inputs` under `config`, and the lines worth reporting about how it was made.
 ///
 /// With [`Fusion::Carve`] and the masks: the masks at the dataset's resolution carved by the
@@ -721,47 +741,29 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
             } else {
                 Vec::new()
             };
-        if !hull_maps.is_empty() {
-            let offset_maps: Vec<DepthMap> = inputs
-                .views
-                .iter()
-                .zip(&maps)
-                .zip(&hull_maps)
-                .map(|((v, depth), hull)| DepthMap {
-                    camera: v.camera,
-                    depth,
-                    hull_depth: Some(hull),
-                })
-                .collect();
-            if let Some([q1, median, q3]) = hull_offset(&offset_maps) {
-                notes.push(format!(
-                    "the depth lies {median:+.2} footprints behind the masks' bound (median; \
-                     quartiles {q1:+.2}, {q3:+.2})"
-                ));
-                if config.carve_debias && median > 0.0 {
-                    for (v, depth) in inputs.views.iter().zip(&mut maps) {
-                        debias_depth(v.camera, depth, median);
-                    }
-                    notes.push(format!(
-                        "carving: the depth maps moved {median:.2} footprints towards the cameras"
-                    ));
+        // Without the bound's depth (no gate, guard or debias) there is no offset to read.
+        if let Some([q1, median, q3]) =
+            hull_offset(&depth_maps(inputs.views, &maps, &hull_maps, true))
+        {
+            notes.push(format!(
+                "the depth lies {median:+.2} footprints behind the masks' bound (median; \
+                 quartiles {q1:+.2}, {q3:+.2})"
+            ));
+            if config.carve_debias && median > 0.0 {
+                for (v, depth) in inputs.views.iter().zip(&mut maps) {
+                    debias_depth(v.camera, depth, median);
                 }
+                notes.push(format!(
+                    "carving: the depth maps moved {median:.2} footprints towards the cameras"
+                ));
             }
         }
-        let depths: Vec<DepthMap> = inputs
-            .views
-            .iter()
-            .zip(&maps)
-            .enumerate()
-            .map(|(k, (v, depth))| DepthMap {
-                camera: v.camera,
-                depth,
-                hull_depth: hull_maps
-                    .get(k)
-                    .filter(|_| config.carve_concavity_gate > 0.0)
-                    .map(Vec::as_slice),
-            })
-            .collect();
+        let depths = depth_maps(
+            inputs.views,
+            &maps,
+            &hull_maps,
+            config.carve_concavity_gate > 0.0,
+        );
         let voxel = config.carve_voxel.unwrap_or(masks.voxel);
         let carve = config.carve();
         let (mut mesh, gate) = carve_mesh_counted(&bound, &depths, lo, hi, voxel, &carve)?;

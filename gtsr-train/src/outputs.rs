@@ -348,7 +348,7 @@ fn test_view_geometry(
 ) -> Result<(Option<DepthMetrics>, Option<DepthMetrics>)> {
     let caster = MeshRaycaster::new(gt, "ground-truth mesh")?;
     let mut cmp = DepthComparison::new();
-    let mut cmp_area = DepthComparison::new();
+    let mut cmp_area = area.then(DepthComparison::new);
     for (v, data) in tests.iter().zip(&scene.test) {
         let truth = caster.render(&data.camera);
         let g = fusion_geometry(model, &v.camera, &v.rays, settings)?;
@@ -365,14 +365,13 @@ fn test_view_geometry(
         };
         cmp.add(&truth, &depth, &normal, &select)
             .with_context(|| format!("comparing the depth of test view {}", data.name))?;
-        if area {
+        if let Some(c) = cmp_area.as_mut() {
             let truth = caster.render_area(&data.camera, AREA_RAYS)?;
-            cmp_area
-                .add(&truth, &depth, &normal, &select)
+            c.add(&truth, &depth, &normal, &select)
                 .with_context(|| format!("comparing the depth of test view {}", data.name))?;
         }
     }
-    Ok((cmp.finish(), if area { cmp_area.finish() } else { None }))
+    Ok((cmp.finish(), cmp_area.and_then(|c| c.finish())))
 }
 
 /// Writes `value` as pretty JSON, atomically.
@@ -477,6 +476,13 @@ fn write_strips(
         std::fs::rename(&tmp, &path).with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(tests.len())
+}
+
+/// [`DepthMetrics::depth_mean_signed_off_edges`] x1e3 for the log (`-` when every pixel lies
+/// on an occluding edge).
+fn off_edges(d: &DepthMetrics) -> String {
+    d.depth_mean_signed_off_edges
+        .map_or("-".into(), |v| format!("{:+.2}", v * 1e3))
 }
 
 /// Final outputs: mesh, splats, renders, metrics, error-against-time plot.
@@ -632,8 +638,7 @@ pub fn finish(
             q.join(" / "),
             d.depth_mean_signed_inner * 1e3,
             100.0 * d.edge_share,
-            d.depth_mean_signed_off_edges
-                .map_or("-".into(), |v| format!("{:+.2}", v * 1e3))
+            off_edges(d)
         );
     }
     if let Some(d) = &e.depth_area {
@@ -643,8 +648,7 @@ pub fn finish(
             d.depth_median_abs * 1e3,
             d.depth_mean_abs * 1e3,
             d.depth_mean_signed * 1e3,
-            d.depth_mean_signed_off_edges
-                .map_or("-".into(), |v| format!("{:+.2}", v * 1e3))
+            off_edges(d)
         );
     }
     Ok(())

@@ -295,13 +295,14 @@ fn attach_hull_depth(
             height: k.height,
         };
         let md = caster.render(&camera);
-        let mut depth = md.depth.clone();
-        if edges > 0.0 {
-            for (d, e) in depth.iter_mut().zip(md.occluding_edges(edges)) {
-                if e {
-                    *d = 0.0;
-                }
-            }
+        let cut = if edges > 0.0 {
+            md.occluding_edges(edges)
+        } else {
+            Vec::new()
+        };
+        let mut depth = md.depth;
+        for (d, _) in depth.iter_mut().zip(cut).filter(|(_, e)| *e) {
+            *d = 0.0;
         }
         let shape = [k.height as usize, k.width as usize];
         let device = v.rays.device();
