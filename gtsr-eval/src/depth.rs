@@ -56,19 +56,44 @@ impl MeshDepth {
                     return false;
                 }
                 let limit = footprints * z / self.focal;
-                let (x, y) = (p % w, p / w);
-                [
-                    (x.wrapping_sub(1), y),
-                    (x + 1, y),
-                    (x, y.wrapping_sub(1)),
-                    (x, y + 1),
-                ]
-                .into_iter()
-                .filter(|&(nx, ny)| nx < w && ny < h)
-                .any(|(nx, ny)| {
-                    let zn = self.depth[ny * w + nx];
-                    !(zn.is_finite() && zn > 0.0) || (zn - z).abs() > limit
-                })
+                self.neighbour_depths(p)
+                    .any(|zn| !(zn.is_finite() && zn > 0.0) || (zn - z).abs() > limit)
+            })
+            .collect()
+    }
+
+    /// The depths of pixel `p`'s 4-neighbours inside the image.
+    fn neighbour_depths(&self, p: usize) -> impl Iterator<Item = f32> + '_ {
+        let (w, h) = (self.width, self.height);
+        let (x, y) = (p % w, p / w);
+        [
+            (x.wrapping_sub(1), y),
+            (x + 1, y),
+            (x, y.wrapping_sub(1)),
+            (x, y + 1),
+        ]
+        .into_iter()
+        .filter(move |&(nx, ny)| nx < w && ny < h)
+        .map(move |(nx, ny)| self.depth[ny * w + nx])
+    }
+
+    /// Per pixel, the depth of the nearest 4-neighbour that the mesh places more than
+    /// `footprints` pixel footprints in front of this pixel's own hit (this pixel lies just
+    /// behind an occluding edge, on its far side), `0` where none does or the pixel misses the
+    /// mesh. A rendering whose nearer surface spills past the edge reads this depth there.
+    pub fn occluders(&self, footprints: f32) -> Vec<f32> {
+        let (w, h) = (self.width, self.height);
+        (0..w * h)
+            .map(|p| {
+                let z = self.depth[p];
+                if !(z.is_finite() && z > 0.0) {
+                    return 0.0;
+                }
+                let limit = z - footprints * z / self.focal;
+                self.neighbour_depths(p)
+                    .filter(|zn| zn.is_finite() && *zn > 0.0 && *zn < limit)
+                    .reduce(f32::min)
+                    .unwrap_or(0.0)
             })
             .collect()
     }
@@ -190,6 +215,14 @@ pub struct DepthMetrics {
     /// edges); `None` when every pixel compared lies on one.
     #[serde(default)]
     pub depth_mean_signed_off_edges: Option<f64>,
+    /// The share of the pixels compared that lie just behind an occluding edge of the truth,
+    /// on its far side ([`MeshDepth::occluders`] at [`EDGE_FOOTPRINTS`]): a subset of the edge
+    /// pixels, where a nearer surface that spills past its outline reads in front.
+    #[serde(default)]
+    pub far_side_share: f64,
+    /// Mean `depth - true depth` over those pixels; `None` when there are none.
+    #[serde(default)]
+    pub depth_mean_signed_far_side: Option<f64>,
     /// Mean angle between the rendered and the true normal, degrees.
     pub normal_mean_deg: f64,
     /// Median of that angle, degrees.
@@ -207,6 +240,8 @@ pub struct DepthComparison {
     depth_err: Vec<f32>,
     /// Per entry of `depth_err`, whether its pixel lies on an occluding edge of the truth.
     at_edge: Vec<bool>,
+    /// Per entry of `depth_err`, whether its pixel lies just behind one (its far side).
+    far_side: Vec<bool>,
     normal_deg: Vec<f32>,
     truth_pixels: usize,
 }
@@ -245,6 +280,7 @@ impl DepthComparison {
             return Err(EvalError::size("pixel selection", size, select.len()));
         }
         let edges = truth.occluding_edges(EDGE_FOOTPRINTS);
+        let occluders = truth.occluders(EDGE_FOOTPRINTS);
         for p in 0..n {
             let t = truth.depth[p];
             if !(select[p] && t.is_finite() && t > 0.0) {
@@ -259,6 +295,7 @@ impl DepthComparison {
             }
             self.depth_err.push(d - t);
             self.at_edge.push(edges[p]);
+            self.far_side.push(occluders[p] > 0.0);
             let cos = (nv / nl).dot(truth.normal[p]).clamp(-1.0, 1.0);
             self.normal_deg.push(cos.acos().to_degrees());
         }
@@ -293,6 +330,12 @@ impl DepthComparison {
             .zip(&self.at_edge)
             .filter(|(_, edge)| !**edge)
             .fold((0.0f64, 0usize), |(s, n), (e, _)| (s + *e as f64, n + 1));
+        let (far_sum, far_n) = self
+            .depth_err
+            .iter()
+            .zip(&self.far_side)
+            .filter(|(_, far)| **far)
+            .fold((0.0f64, 0usize), |(s, n), (e, _)| (s + *e as f64, n + 1));
         Some(DepthMetrics {
             depth_mean_abs: mean(&abs),
             depth_median_abs: median(abs),
@@ -302,6 +345,8 @@ impl DepthComparison {
                 / inner.len() as f64,
             edge_share: (k - off_n) as f64 / k as f64,
             depth_mean_signed_off_edges: (off_n > 0).then(|| off_sum / off_n as f64),
+            far_side_share: far_n as f64 / k as f64,
+            depth_mean_signed_far_side: (far_n > 0).then(|| far_sum / far_n as f64),
             normal_mean_deg: mean(&self.normal_deg),
             normal_median_deg: median(self.normal_deg.clone()),
             pixels: k,
@@ -477,6 +522,74 @@ mod tests {
         assert!((m.edge_share - share).abs() < 1e-12);
         assert!(m.depth_mean_signed_off_edges.unwrap().abs() < 1e-6);
         assert!((m.depth_mean_signed + 0.3 * share).abs() < 1e-5);
+    }
+
+    #[test]
+    fn a_surface_spilling_past_an_edge_shows_on_its_far_side() {
+        // A far plane at z = 4 and, in front of its left half, a near one at z = 2 (x < 0.05,
+        // between pixel centres, so that the edge's two sides are whole columns; the jump is
+        // 13 footprints at z = 4).
+        let mut mesh = square(4.0);
+        let near = [(-2.0, -2.0), (0.05, -2.0), (0.05, 2.0), (-2.0, 2.0)];
+        mesh.positions
+            .extend(near.iter().map(|&(x, y)| Vec3::new(x, y, 2.0)));
+        mesh.triangles.extend([[4, 5, 6], [4, 6, 7]]);
+        let cam = camera_on_axis(16);
+        let truth = MeshRaycaster::new(&mesh, "two planes")
+            .unwrap()
+            .render(&cam);
+        let occ = truth.occluders(EDGE_FOOTPRINTS);
+        let far: Vec<usize> = (0..256).filter(|&p| occ[p] > 0.0).collect();
+        // One column of 16 pixels, each with the near plane's depth as its occluder.
+        assert_eq!(far.len(), 16, "{far:?}");
+        assert!(
+            far.iter()
+                .all(|&p| truth.depth[p] > 3.5 && (occ[p] - 2.0).abs() < 1e-5)
+        );
+        // A rendering that reads the near plane on that column, exact elsewhere.
+        let depth: Vec<f32> = (0..256)
+            .map(|p| if occ[p] > 0.0 { occ[p] } else { truth.depth[p] })
+            .collect();
+        let normal: Vec<f32> = truth.normal.iter().flat_map(|v| v.to_array()).collect();
+        let mut c = DepthComparison::new();
+        c.add(&truth, &depth, &normal, &[true; 256]).unwrap();
+        let m = c.finish().unwrap();
+        assert!((m.far_side_share - 16.0 / 256.0).abs() < 1e-12);
+        assert!((m.depth_mean_signed_far_side.unwrap() + 2.0).abs() < 1e-5);
+        assert!(m.depth_mean_signed_off_edges.unwrap().abs() < 1e-6);
+        assert!((m.depth_mean_signed + 2.0 * 16.0 / 256.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn occluders_mark_the_far_side_of_an_edge_with_the_nearer_depth() {
+        // A 4x3 map: columns 0-1 at depth 2 (nearer), 2-3 at depth 4; row 2 column 3 misses.
+        let depth: Vec<f32> = (0..12)
+            .map(|p| match (p % 4, p / 4) {
+                (3, 2) => 0.0,
+                (x, _) if x < 2 => 2.0,
+                _ => 4.0,
+            })
+            .collect();
+        let md = MeshDepth {
+            width: 4,
+            height: 3,
+            depth,
+            normal: vec![Vec3::Z; 12],
+            focal: 10.0,
+        };
+        // At depth 4 a footprint is 0.4: the jump of 2 is 5 footprints.
+        let occ = md.occluders(3.0);
+        for y in 0..3 {
+            let row = &occ[4 * y..4 * y + 4];
+            assert_eq!(row, [0.0, 0.0, 2.0, 0.0], "row {y}: {occ:?}");
+        }
+        // A larger threshold than the jump: no occluder; the nearer side and a miss never have one.
+        assert!(md.occluders(6.0).iter().all(|o| *o == 0.0));
+        // The nearest of two nearer neighbours.
+        let mut two = md.clone();
+        two.depth[1] = 1.5;
+        two.depth[6] = 1.0;
+        assert_eq!(two.occluders(3.0)[2], 1.0);
     }
 
     #[test]

@@ -249,6 +249,7 @@ pub fn load(path: &Path, views: Vec<ViewTensors>, device: &Device) -> Result<Tra
         }),
         sh_degree: meta.sh_degree,
         blur_px2: meta.config.blur_px2,
+        compensate_blur: meta.config.compensate_blur,
         surface_opacity_floor: meta.config.surface_opacity_floor,
     };
     trainer.step = meta.step;

@@ -426,6 +426,13 @@ pub struct LossWeights {
     #[serde(default)]
     #[arg(skip)]
     pub hull_depth_edges: f64,
+    /// With [`LossWeights::hull_depth`]: a pixel just behind an occluding edge of the masks'
+    /// bound (a 4-neighbour's bound depth lies more than this many footprints in front of its
+    /// own) also counts where the blended depth reads that neighbour's depth, pulled to its own:
+    /// the nearer surface must not spill past the edge (0: off).
+    #[serde(default)]
+    #[arg(skip)]
+    pub hull_depth_occluders: f64,
 }
 
 impl Default for LossWeights {
@@ -451,6 +458,7 @@ impl Default for LossWeights {
             smooth_scatter: 0.0,
             hull_depth: 0.0,
             hull_depth_edges: 0.0,
+            hull_depth_occluders: 0.0,
         }
     }
 }
@@ -758,6 +766,13 @@ pub struct TrainConfig {
     #[serde(default = "legacy_blur_px2")]
     #[arg(long = "blur", id = "train.blur_px2", value_name = "PX2", default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).blur_px2, value_parser = parse_non_negative, hide_default_value = true, help_heading = "Training")]
     pub blur_px2: f64,
+    /// Scale every splat's opacity so that the blur does not add to what it covers
+    /// (`gtsr_render_kernels::blur_compensation`, Mip-Splatting's 2D filter): a flat surface
+    /// Gaussian seen edge-on, dilated to the blur's width, no longer spills past an occluding
+    /// edge. Configs written before this setting keep the plain blur.
+    #[serde(default)]
+    #[arg(long = "compensate-blur", id = "train.compensate_blur", value_name = "BOOL", action = ArgAction::Set, default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).compensate_blur, help_heading = "Training")]
+    pub compensate_blur: bool,
     /// The least opacity of a surface Gaussian, `[0, 1)`: its opacity is
     /// `floor + (1 - floor) logistic(logit)`. 0 (the default) is 3DGS's logistic. Above 0 the
     /// surface set cannot be a stack of faint layers: each splat hides what lies behind it by at
@@ -815,6 +830,7 @@ impl TrainConfig {
             coarse_until: 0,
             seed: 0,
             blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
+            compensate_blur: false,
             surface_opacity_floor: 0.0,
             scatter_lambert: false,
             pbr_scatter_srgb: false,
@@ -938,6 +954,10 @@ impl TrainConfig {
             ("weights.smooth_scatter", self.weights.smooth_scatter),
             ("weights.hull_depth", self.weights.hull_depth),
             ("weights.hull_depth_edges", self.weights.hull_depth_edges),
+            (
+                "weights.hull_depth_occluders",
+                self.weights.hull_depth_occluders,
+            ),
         ] {
             if !v.is_finite() || v < 0.0 {
                 bad.push(format!("{name} must be finite and non-negative, got {v}"));
@@ -1129,12 +1149,17 @@ mod tests {
         assert_eq!(unmasked.weights.hull_depth, 0.0);
         // The bound's occluding edges count unless a config leaves them out.
         assert_eq!(masked.weights.hull_depth_edges, 0.0);
-        // A run from before the term (or before the edges' setting) repeats without it, and
-        // both settings must be finite and non-negative.
+        // The pixels behind the bound's occluding edges count only as the bound reads them.
+        assert_eq!(masked.weights.hull_depth_occluders, 0.0);
+        // A run from before the term (or before either edge setting) repeats without it, and
+        // every setting must be finite and non-negative.
         type Field = fn(&mut LossWeights) -> &mut f64;
-        let fields: [(&str, Field); 2] = [
+        let fields: [(&str, Field); 3] = [
             ("weights.hull_depth", |w| &mut w.hull_depth),
             ("weights.hull_depth_edges", |w| &mut w.hull_depth_edges),
+            ("weights.hull_depth_occluders", |w| {
+                &mut w.hull_depth_occluders
+            }),
         ];
         for (name, field) in fields {
             let mut old = read_without(&masked, &[name]);
@@ -1226,5 +1251,12 @@ mod tests {
             .unwrap_err();
             assert!(e.contains("blur_px2"), "{e}");
         }
+        // The blur's compensation is off by default and in configs written before it.
+        assert!(!c.compensate_blur);
+        let on = TrainConfig {
+            compensate_blur: true,
+            ..c.clone()
+        };
+        assert!(!read_without(&on, &["compensate_blur"]).compensate_blur);
     }
 }

@@ -40,6 +40,10 @@ pub struct Model {
     pub sh_degree: u32,
     /// Screen-space blur of every render, pixels^2 ([`SplatConfig::blur_px2`]).
     pub blur_px2: f64,
+    /// Whether every render scales the opacities by the blur's compensation
+    /// ([`gtsr_render_kernels::blur_compensation`], computed once per set and camera), as
+    /// [`crate::config::TrainConfig::compensate_blur`].
+    pub compensate_blur: bool,
     /// The least opacity of a surface Gaussian (`[0, 1)`; 0: the plain logistic), as
     /// [`crate::config::TrainConfig::surface_opacity_floor`].
     pub surface_opacity_floor: f64,
@@ -125,27 +129,37 @@ struct Prepared {
     quats: Tensor<2>,
     scales: Tensor<2>,
     opacities: Tensor<1>,
+    /// With [`Model::compensate_blur`]: the blur's compensation of each Gaussian for this
+    /// camera (`gtsr_render_kernels::blur_compensation`), which every pass multiplies into the
+    /// opacities it splats ([`splat_inputs`]).
+    compensation: Option<Tensor<1>>,
     colours: Tensor<2>,
     normals_w: Option<Tensor<2>>,
     offsets: Option<Tensor<2>>,
 }
 
-/// The render settings of every pass: black background, 3DGS's hard cut-off.
+/// The render settings of every pass: black background, 3DGS's hard cut-off. The blur's
+/// compensation, when on, is already in the opacities ([`Prepared::compensation`]).
 fn splat_config(camera: &Camera, channels: usize, blur_px2: f64) -> SplatConfig {
     SplatConfig {
         camera: camera.clone(),
         background: vec![0.0; channels],
         cutoff: AlphaCutoff::Hard,
         blur_px2,
+        compensate_blur: false,
     }
 }
 
+/// The kernels' inputs for a prepared set, `opacities` times the set's blur compensation.
 fn splat_inputs(p: &Prepared, opacities: Tensor<1>, features: Tensor<2>) -> SplatInputs {
     SplatInputs {
         means: p.means.clone(),
         quats: p.quats.clone(),
         scales: p.scales.clone(),
-        opacities,
+        opacities: match &p.compensation {
+            Some(c) => opacities * c.clone(),
+            None => opacities,
+        },
         features,
         xy_offsets: p.offsets.clone(),
     }
@@ -191,6 +205,10 @@ fn cat_prepared(a: &Prepared, b: &Prepared) -> Prepared {
         quats: cat2(&a.quats, &b.quats),
         scales: cat2(&a.scales, &b.scales),
         opacities: Tensor::cat(vec![a.opacities.clone(), b.opacities.clone()], 0),
+        compensation: match (&a.compensation, &b.compensation) {
+            (Some(x), Some(y)) => Some(Tensor::cat(vec![x.clone(), y.clone()], 0)),
+            _ => None,
+        },
         colours: cat2(&a.colours, &b.colours),
         normals_w: None,
         offsets: match (&a.offsets, &b.offsets) {
@@ -256,6 +274,7 @@ impl Model {
                 .map(|l| l.clone().set_require_grad(false)),
             sh_degree: self.sh_degree,
             blur_px2: self.blur_px2,
+            compensate_blur: self.compensate_blur,
             surface_opacity_floor: self.surface_opacity_floor,
         }
     }
@@ -286,9 +305,15 @@ impl Model {
         let normals_w =
             normals.then(|| facing_normals(&quat_to_matrix(&quats), &log_scales, &means, centre));
         let n = set.len();
+        let scales = log_scales.exp();
+        let compensation = self.compensate_blur.then(|| {
+            let cfg = splat_config(camera, 1, self.blur_px2);
+            gtsr_render_kernels::blur_compensation(&means, &quats, &scales, &cfg)
+        });
         Prepared {
             opacities: self.opacities(set),
-            scales: log_scales.exp(),
+            compensation,
+            scales,
             means,
             quats,
             colours,
@@ -397,6 +422,7 @@ impl Model {
                 quats: surf.quats.clone(),
                 scales: surf.scales.clone(),
                 opacities: surf_op,
+                compensation: surf.compensation.clone(),
                 colours: surf.colours.clone(),
                 normals_w: None,
                 offsets: surf.offsets.clone(),
@@ -535,6 +561,7 @@ impl Model {
             quats: constant(&surf.quats),
             scales: constant(&surf.scales),
             opacities: surf.opacities.clone(),
+            compensation: surf.compensation.as_ref().map(|c| c.clone().detach()),
             colours: constant(&surf.colours),
             normals_w: None,
             offsets: surf.offsets.as_ref().map(constant),
@@ -555,16 +582,9 @@ impl Model {
         camera: &Camera,
         threshold: f64,
     ) -> Result<Vec<bool>, ModelError> {
-        let set = &self.surface;
-        let means = set.req(ParamKind::Means).clone();
-        let inputs = SplatInputs {
-            features: layout::cols(&means, 0..1).zeros_like(),
-            means,
-            quats: set.req(ParamKind::Rotations).clone(),
-            scales: set.scales(),
-            opacities: self.opacities(set),
-            xy_offsets: None,
-        };
+        let surf = self.prepare(&self.surface, camera, false, false);
+        let zeros = layout::cols(&surf.means, 0..1).zeros_like();
+        let inputs = splat_inputs(&surf, surf.opacities.clone(), zeros);
         let cfg = splat_config(camera, 1, self.blur_px2);
         Ok(gtsr_render_kernels::render_crossing(inputs, &cfg, threshold)?.observed)
     }

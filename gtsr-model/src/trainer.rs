@@ -427,6 +427,7 @@ impl Trainer {
                 .then(|| scalar_param(mean_dist2.max(1e-6).ln(), device)),
             sh_degree: 0,
             blur_px2: config.blur_px2,
+            compensate_blur: config.compensate_blur,
             surface_opacity_floor: config.surface_opacity_floor,
         };
         let cams: Vec<_> = views.iter().map(|v| v.camera.clone()).collect();
@@ -728,7 +729,13 @@ impl Trainer {
             if let (Some(hull), true) = (&view.hull_depth, w.hull_depth > 0.0) {
                 add(
                     "hull_depth",
-                    losses::hull_depth(&g.depth, hull, view.camera.fx, &valid) * w.hull_depth,
+                    losses::hull_depth(
+                        &g.depth,
+                        hull,
+                        view.hull_occluders.as_ref(),
+                        view.camera.fx,
+                        &valid,
+                    ) * w.hull_depth,
                 );
             }
             if let Some(spread) = &g.spread {

@@ -61,6 +61,10 @@ pub struct ViewTensors {
     /// `[H, W]` the masks' bound's own depth from this view (z, `0` where its ray misses
     /// it), for [`crate::losses::hull_depth`]; `None` until the front end sets it.
     pub hull_depth: Option<Tensor<2>>,
+    /// `[H, W]` with [`ViewTensors::hull_depth`]: the bound's depth at the neighbour in front
+    /// of an occluding edge of the bound, on the pixels just behind one (`0` elsewhere), for
+    /// [`crate::losses::hull_depth`]; `None` unless the front end sets it.
+    pub hull_occluders: Option<Tensor<2>>,
     /// `[H, W, 3]` camera-space pixel rays (z = 1).
     pub rays: Tensor<3>,
     /// `[H, W]` PGSR edge weight `(1 - g)^2`, `g` the min-max normalised image gradient.
@@ -161,6 +165,7 @@ impl ViewTensors {
             mask: mask.map(|m| Tensor::from_data(TensorData::new(m, [h, w]), device)),
             mask_edge_px: edge_px.map(|d| Tensor::from_data(TensorData::new(d, [h, w]), device)),
             hull_depth: None,
+            hull_occluders: None,
             rays: pixel_rays(&camera, device),
             edge_weight: Tensor::from_data(TensorData::new(edge, [h, w]), device),
             smooth_wx: Tensor::from_data(TensorData::new(wx, [h, w - 1]), device),

@@ -51,17 +51,22 @@ pub struct SplatConfig {
     /// `>= 0`): [`BLUR_PX2`] (3DGS) or [`PIXEL_BOX_BLUR_PX2`]. It keeps edge-on flat splats
     /// at least this wide on screen; at 0 they are culled as degenerate.
     pub blur_px2: f64,
+    /// Scale each opacity by `sqrt(det Sigma / det(Sigma + b I))` ([`crate::blur_compensation`],
+    /// Mip-Splatting's 2D filter) so that the blur widens a thin splat without adding to what
+    /// it covers: a flat surface seen edge-on then does not spill past its outline.
+    pub compensate_blur: bool,
 }
 
 impl SplatConfig {
     /// A configuration with a black background of `channels` channels, the hard 3DGS alpha
-    /// cut-off and the 3DGS blur ([`BLUR_PX2`]).
+    /// cut-off and the 3DGS blur ([`BLUR_PX2`]), uncompensated.
     pub fn new(camera: Camera, channels: usize) -> Self {
         SplatConfig {
             camera,
             background: vec![0.0; channels],
             cutoff: AlphaCutoff::Hard,
             blur_px2: BLUR_PX2,
+            compensate_blur: false,
         }
     }
 }

@@ -77,6 +77,7 @@ impl HostScene {
             background: self.background.clone(),
             cutoff,
             blur_px2: crate::BLUR_PX2,
+            compensate_blur: false,
         }
     }
 
@@ -484,6 +485,18 @@ pub fn weighted_loss_gradients_on(
     cutoff: AlphaCutoff,
     weights: &[f64],
 ) -> Result<SceneGradients, crate::RenderError> {
+    weighted_loss_gradients_with(device, scene, dtype, &scene.config(cutoff), weights)
+}
+
+/// [`weighted_loss_gradients_on`] rendered with `config` instead of the scene's own settings
+/// (another blur, its compensation).
+pub fn weighted_loss_gradients_with(
+    device: &Device,
+    scene: &HostScene,
+    dtype: DType,
+    config: &SplatConfig,
+    weights: &[f64],
+) -> Result<SceneGradients, crate::RenderError> {
     let device = device.clone().autodiff();
     let inp = scene.inputs(&device, dtype);
     let leaves = SplatInputs {
@@ -494,7 +507,7 @@ pub fn weighted_loss_gradients_on(
         features: inp.features.require_grad(),
         xy_offsets: inp.xy_offsets.map(|t| t.require_grad()),
     };
-    let out = crate::render(leaves.clone(), &scene.config(cutoff))?;
+    let out = crate::render(leaves.clone(), config)?;
     let (h, w) = (scene.camera.height as usize, scene.camera.width as usize);
     let c = scene.channels;
     let wt = Tensor::<3>::from_data(

@@ -246,6 +246,34 @@ fn blur_setting_matches_cpu() {
 }
 
 #[test]
+fn blur_compensation_matches_cpu() {
+    let scene = random_scene(951, &spec(200, 2, (48, 40)));
+    let mut cfg = scene.config(AlphaCutoff::Smooth);
+    cfg.blur_px2 = gtsr_render_kernels::PIXEL_BOX_BLUR_PX2;
+    cfg.compensate_blur = true;
+    let (h, w) = (40, 48);
+    let weights = gtsr_render_kernels::scenes::random_weights(52, h * w * 3);
+    let run = |device: &Device, dtype| {
+        gtsr_render_kernels::scenes::weighted_loss_gradients_with(
+            device, &scene, dtype, &cfg, &weights,
+        )
+        .unwrap()
+    };
+    let (cpu, gpu) = (
+        run(&Device::ndarray(), DType::F64),
+        run(&wgpu(), DType::F32),
+    );
+    let e = rel_err(&gpu.output, &cpu.output);
+    assert!(e <= 1e-4, "forward relative error {e:.3e}");
+    for (e, input) in grad_errors(&scene, &gpu.grads, &cpu.grads)
+        .iter()
+        .zip(INPUT_NAMES)
+    {
+        assert!(*e <= 1e-3, "gradient of {input}: relative error {e:.3e}");
+    }
+}
+
+#[test]
 fn stiff_cases_match_cpu() {
     for case in stiff_cases() {
         for cutoff in [AlphaCutoff::Smooth, AlphaCutoff::Hard] {

@@ -634,11 +634,15 @@ pub fn finish(
         let q = d.depth_signed_quantiles.map(|v| format!("{:+.2}", v * 1e3));
         println!(
             "  signed depth error x1e3 at 5/25/50/75/95 %: {}; mean signed within 5-95 %: {:+.2}; \
-             {:.1} % of the pixels on the truth's occluding edges, mean signed off them {}",
+             {:.1} % of the pixels on the truth's occluding edges, mean signed off them {}; \
+             {:.1} % just behind one, mean signed there {}",
             q.join(" / "),
             d.depth_mean_signed_inner * 1e3,
             100.0 * d.edge_share,
-            off_edges(d)
+            off_edges(d),
+            100.0 * d.far_side_share,
+            d.depth_mean_signed_far_side
+                .map_or("-".into(), |v| format!("{:+.2}", v * 1e3))
         );
     }
     if let Some(d) = &e.depth_area {

@@ -276,12 +276,15 @@ fn fusion_views(
 /// Each view's [`ViewTensors::hull_depth`]: `caster`'s mesh (the masks' bound) ray cast from
 /// the view's camera at the view's own size (`hosts`: the same views, for their poses),
 /// without the pixels on its occluding edges at `edges` footprints (0: all kept;
-/// [`gtsr_eval::MeshDepth::occluding_edges`]).
+/// [`gtsr_eval::MeshDepth::occluding_edges`]), and with `occluders` > 0 each view's
+/// [`ViewTensors::hull_occluders`] at that many footprints
+/// ([`gtsr_eval::MeshDepth::occluders`]).
 fn attach_hull_depth(
     views: &mut [ViewTensors],
     hosts: &[gtsr_data::View],
     caster: &gtsr_eval::MeshRaycaster,
     edges: f32,
+    occluders: f32,
 ) {
     for (v, host) in views.iter_mut().zip(hosts) {
         let k = &v.camera;
@@ -295,6 +298,14 @@ fn attach_hull_depth(
             height: k.height,
         };
         let md = caster.render(&camera);
+        let shape = [k.height as usize, k.width as usize];
+        let device = v.rays.device();
+        v.hull_occluders = (occluders > 0.0).then(|| {
+            burn::tensor::Tensor::from_data(
+                burn::tensor::TensorData::new(md.occluders(occluders), shape),
+                &device,
+            )
+        });
         let cut = if edges > 0.0 {
             md.occluding_edges(edges)
         } else {
@@ -304,8 +315,6 @@ fn attach_hull_depth(
         for (d, _) in depth.iter_mut().zip(cut).filter(|(_, e)| *e) {
             *d = 0.0;
         }
-        let shape = [k.height as usize, k.width as usize];
-        let device = v.rays.device();
         v.hull_depth = Some(burn::tensor::Tensor::from_data(
             burn::tensor::TensorData::new(depth, shape),
             &device,
@@ -672,11 +681,13 @@ pub fn run(args: &Args) -> Result<Outcome> {
             let t0 = Instant::now();
             let caster = gtsr_eval::MeshRaycaster::new(bound.bound_mesh(), "the masks' bound")?;
             let mut views = trainer.views().to_vec();
-            let edges = trainer.config().weights.hull_depth_edges as f32;
-            attach_hull_depth(&mut views, &scene.train, &caster, edges);
+            let weights = &trainer.config().weights;
+            let edges = weights.hull_depth_edges as f32;
+            let occluders = weights.hull_depth_occluders as f32;
+            attach_hull_depth(&mut views, &scene.train, &caster, edges, occluders);
             trainer.set_views(views)?;
             if let Some(full) = full_views.as_mut() {
-                attach_hull_depth(full, &scene.train, &caster, edges);
+                attach_hull_depth(full, &scene.train, &caster, edges, occluders);
             }
             println!(
                 "hull depth: the masks' bound ray cast from the {} training views ({:.1} s)",

@@ -175,18 +175,32 @@ pub const HULL_DEPTH_BAND: f64 = 3.0;
 /// footprint, and this asks the surface set's blended depth to be there rather than behind
 /// it; where the two lie farther apart it leaves the depth free. Which pixels count is
 /// decided on the detached depth.
+///
+/// With `occluders` (the bound's depth at a neighbour in front of an occluding edge of the
+/// bound, `0` elsewhere; `gtsr_eval::MeshDepth::occluders` gives them) a pixel also counts, still
+/// against `H`, where `D` lies within the band of that occluder's depth: the nearer surface
+/// spills past the edge onto a pixel that the bound places behind it.
 pub fn hull_depth(
     depth: &Tensor<2>,
     hull: &Tensor<2>,
+    occluders: Option<&Tensor<2>>,
     focal: f64,
     valid: &Tensor<2, Bool>,
 ) -> Tensor<1> {
     let hull = hull.clone().detach();
+    let detached = depth.clone().detach();
     // A NaN gap compares false: such a pixel does not count.
-    let scale = hull.clone().clamp_min(1e-6).recip() * focal;
-    let near = ((depth.clone().detach() - hull.clone()) * scale)
-        .abs()
-        .lower_elem(HULL_DEPTH_BAND);
+    let within = |reference: Tensor<2>| {
+        let scale = reference.clone().clamp_min(1e-6).recip() * focal;
+        ((detached.clone() - reference.clone()) * scale)
+            .abs()
+            .lower_elem(HULL_DEPTH_BAND)
+            .bool_and(reference.greater_elem(0.0))
+    };
+    let mut near = within(hull.clone());
+    if let Some(o) = occluders {
+        near = near.bool_or(within(o.clone().detach()));
+    }
     footprint_gap(depth, &hull, focal, &valid.clone().bool_and(near))
 }
 

@@ -10,7 +10,7 @@ use gtsr_model::pbr::{self, GBuffer, ShadingParams};
 use gtsr_model::sh;
 use gtsr_render_kernels::cpu::HostGaussians;
 use gtsr_render_kernels::reference::render_reference;
-use gtsr_render_kernels::{AlphaCutoff, Camera, SplatConfig};
+use gtsr_render_kernels::{AlphaCutoff, Camera, SplatConfig, SplatInputs, render};
 use rand::{RngExt, SeedableRng, rngs::StdRng};
 
 const SHADING: ShadingParams = ShadingParams {
@@ -137,6 +137,7 @@ fn full_model(surf: &HostSet, int: &HostSet, device: &Device) -> Model {
         )),
         sh_degree: 3,
         blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
+        compensate_blur: false,
         surface_opacity_floor: 0.0,
     }
 }
@@ -194,6 +195,7 @@ fn c_sh_matches_direct_evaluation() {
         background: vec![0.0; 3],
         cutoff: AlphaCutoff::Hard,
         blur_px2: model.blur_px2,
+        compensate_blur: model.compensate_blur,
     };
     let direct = render_reference(&g, &cfg);
     let got = host_vec(r.c_sh);
@@ -441,6 +443,7 @@ fn surface_only_model(splats: &[Splat], blur_px2: f64, device: &Device) -> Model
         log_light: None,
         sh_degree: 0,
         blur_px2,
+        compensate_blur: false,
         surface_opacity_floor: 0.0,
     }
 }
@@ -1067,7 +1070,7 @@ fn the_hull_depth_term_pulls_the_blend_onto_a_near_bound_and_ignores_a_far_one()
         })
         .collect();
     let hull = Tensor::<2>::from_data(TensorData::new(hull, [h, w]), &device);
-    let loss = losses::hull_depth(&g.depth, &hull, cam.fx, &valid);
+    let loss = losses::hull_depth(&g.depth, &hull, None, cam.fx, &valid);
     let blend = host_vec(g.depth.clone())[12 * w + 4];
     let want = f64::from(blend - 3.8) * cam.fx / 3.8;
     let got = loss.clone().into_scalar::<f64>();
@@ -1082,6 +1085,101 @@ fn the_hull_depth_term_pulls_the_blend_onto_a_near_bound_and_ignores_a_far_one()
     let g_logit = surface_grad(&model, ParamKind::Opacity, &grads);
     assert!(g_logit[0] < 0.0 && g_logit[2] > 0.0, "{g_logit:?}");
     // Only the far bound: nothing counts.
-    let far = losses::hull_depth(&g.depth, &hull.clone().clamp_max(3.0), cam.fx, &valid);
+    let far = losses::hull_depth(&g.depth, &hull.clone().clamp_max(3.0), None, cam.fx, &valid);
     assert_eq!(far.into_scalar::<f64>(), 0.0);
+}
+
+#[test]
+fn the_hull_depth_term_pulls_a_surface_that_spills_past_an_occluding_edge_back() {
+    let device = Device::ndarray().autodiff();
+    let (model, cam) = facing_stack(&[-0.2, 0.0, 0.2], &device);
+    let rays = pixel_rays(&cam, &device);
+    let g = model.render_depth(&cam, &rays).unwrap();
+    let valid = g.coverage.clone().greater_equal_elem(0.5);
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    // The bound places every pixel far behind the blend (at 5), beyond the band; the left half
+    // lies just behind an occluding edge whose nearer side the bound puts at 3.9, where the
+    // blend is: there the blend has spilled past the edge.
+    let hull = Tensor::<2>::from_data(TensorData::new(vec![5.0f32; w * h], [h, w]), &device);
+    let occ: Vec<f32> = (0..w * h)
+        .map(|p| if p % w < w / 2 { 3.9 } else { 0.0 })
+        .collect();
+    let occ = Tensor::<2>::from_data(TensorData::new(occ, [h, w]), &device);
+    let without = losses::hull_depth(&g.depth, &hull, None, cam.fx, &valid);
+    assert_eq!(without.into_scalar::<f64>(), 0.0);
+    let loss = losses::hull_depth(&g.depth, &hull, Some(&occ), cam.fx, &valid);
+    let blend = host_vec(g.depth.clone())[12 * w + 4];
+    // Counted against the pixel's own bound, not the occluder's depth.
+    let want = f64::from(5.0 - blend) * cam.fx / 5.0;
+    let got = loss.clone().into_scalar::<f64>();
+    assert!(
+        want > 3.0 && (got - want).abs() < 1e-3 * want,
+        "{got} against {want} (blend {blend})"
+    );
+    // Descent moves the layers away from the camera (+z) and makes the front one fainter.
+    let grads = loss.backward();
+    let g_means = surface_grad(&model, ParamKind::Means, &grads);
+    assert!((0..3).all(|i| g_means[3 * i + 2] < 0.0), "{g_means:?}");
+    let g_logit = surface_grad(&model, ParamKind::Opacity, &grads);
+    assert!(g_logit[0] > 0.0, "{g_logit:?}");
+    // An occluder the blend does not read (far from it) adds nothing.
+    let elsewhere = losses::hull_depth(&g.depth, &hull, Some(&(occ * 0.5)), cam.fx, &valid);
+    assert_eq!(elsewhere.into_scalar::<f64>(), 0.0);
+}
+
+#[test]
+fn a_compensated_model_splats_each_opacity_times_the_blur_compensation() {
+    let device = Device::ndarray();
+    // Small splats, one seen nearly edge-on: thin on screen, where the factor is far below 1.
+    let h = std::f32::consts::FRAC_1_SQRT_2;
+    let splats = [
+        Splat {
+            mean: [0.1, 0.0, 0.0],
+            quat: [1.0, 0.0, 0.0, 0.0],
+            scales: [0.01, 0.02, 1e-4],
+            opacity: 0.8,
+        },
+        Splat {
+            mean: [-0.1, 0.05, 0.2],
+            quat: [h, 0.0, h, 0.0],
+            scales: [0.05, 0.05, 1e-4],
+            opacity: 0.9,
+        },
+    ];
+    let mut model = surface_only_model(&splats, gtsr_render_kernels::PIXEL_BOX_BLUR_PX2, &device);
+    let cam = Camera::look_at([0.0, 0.0, -4.0], [0.0; 3], [0.0, -1.0, 0.0], 0.7, 24, 24).unwrap();
+    let rays = pixel_rays(&cam, &device);
+    let plain = host_vec(model.render_depth(&cam, &rays).unwrap().coverage);
+    model.compensate_blur = true;
+    let got = host_vec(model.render_depth(&cam, &rays).unwrap().coverage);
+    // The kernels asked for the compensation directly, on the same Gaussians.
+    let set = &model.surface;
+    let means = set.req(ParamKind::Means).clone();
+    let inputs = SplatInputs {
+        features: means.clone(),
+        means,
+        quats: set.req(ParamKind::Rotations).clone(),
+        scales: set.scales(),
+        opacities: model.opacities(set),
+        xy_offsets: None,
+    };
+    let cfg = SplatConfig {
+        blur_px2: model.blur_px2,
+        compensate_blur: true,
+        ..SplatConfig::new(cam.clone(), 3)
+    };
+    let want = host_vec(render(inputs, &cfg).unwrap().alpha);
+    let worst = got
+        .iter()
+        .zip(&want)
+        .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+    assert!(worst < 1e-6, "{worst}");
+    // Thin splats cover less once compensated.
+    let sum = |v: &[f32]| v.iter().sum::<f32>();
+    assert!(
+        sum(&got) < 0.9 * sum(&plain),
+        "{} vs {}",
+        sum(&got),
+        sum(&plain)
+    );
 }

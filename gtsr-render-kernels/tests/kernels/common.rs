@@ -50,3 +50,42 @@ pub fn input_mut(scene: &mut HostScene, k: usize) -> &mut Vec<f64> {
         _ => &mut scene.xy_offsets,
     }
 }
+
+/// Checks `grads` (of the six inputs, order of `INPUT_NAMES`) against central finite
+/// differences of `loss` at every parameter of `scene`, to a relative error of 1e-4 (with a
+/// floor of 1e-3 of the input's largest gradient); returns the worst relative error. `what`
+/// names the case in failures.
+pub fn check_against_finite_differences(
+    scene: &HostScene,
+    grads: &[Vec<f64>],
+    loss: impl Fn(&HostScene) -> f64,
+    what: &str,
+) -> f64 {
+    let mut worst: f64 = 0.0;
+    for (k, name) in INPUT_NAMES.iter().enumerate() {
+        let analytic = &grads[k];
+        let scale = analytic.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let mut probe = scene.clone();
+        for (i, &a) in analytic.iter().enumerate() {
+            let x = input_mut(&mut probe, k)[i];
+            let step = 1e-6 * x.abs().max(1.0);
+            input_mut(&mut probe, k)[i] = x + step;
+            let up = loss(&probe);
+            input_mut(&mut probe, k)[i] = x - step;
+            let down = loss(&probe);
+            input_mut(&mut probe, k)[i] = x;
+            let fd = (up - down) / (2.0 * step);
+            // Relative error, with a floor so that entries that are zero up to rounding do not
+            // divide by ~0.
+            let denom = a.abs().max(fd.abs()).max(1e-3 * scale).max(1e-9);
+            let rel = (a - fd).abs() / denom;
+            assert!(
+                rel <= 1e-4,
+                "{what}: {name}[{i}]: autodiff {a:e} vs finite difference {fd:e} (rel {rel:e})"
+            );
+            worst = worst.max(rel);
+        }
+        assert!(scale > 0.0, "{what}: {name}: all gradients are zero");
+    }
+    worst
+}

@@ -5,6 +5,7 @@
 #![allow(deprecated)]
 
 mod analytic;
+mod antialias;
 mod common;
 mod crossing;
 mod determinism;
