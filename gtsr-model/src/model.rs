@@ -582,10 +582,21 @@ impl Model {
         camera: &Camera,
         threshold: f64,
     ) -> Result<Vec<bool>, ModelError> {
-        let surf = self.prepare(&self.surface, camera, false, false);
-        let zeros = layout::cols(&surf.means, 0..1).zeros_like();
-        let inputs = splat_inputs(&surf, surf.opacities.clone(), zeros);
-        let cfg = splat_config(camera, 1, self.blur_px2);
+        let set = &self.surface;
+        let means = set.req(ParamKind::Means).clone();
+        let inputs = SplatInputs {
+            features: layout::cols(&means, 0..1).zeros_like(),
+            means,
+            quats: set.req(ParamKind::Rotations).clone(),
+            scales: set.scales(),
+            opacities: self.opacities(set),
+            xy_offsets: None,
+        };
+        // Without a prepared set (no colours needed), the kernels apply the compensation.
+        let cfg = SplatConfig {
+            compensate_blur: self.compensate_blur,
+            ..splat_config(camera, 1, self.blur_px2)
+        };
         Ok(gtsr_render_kernels::render_crossing(inputs, &cfg, threshold)?.observed)
     }
 

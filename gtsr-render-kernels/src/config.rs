@@ -53,7 +53,7 @@ pub struct SplatConfig {
     pub blur_px2: f64,
     /// Scale each opacity by `sqrt(det Sigma / det(Sigma + b I))` ([`crate::blur_compensation`],
     /// Mip-Splatting's 2D filter) so that the blur widens a thin splat without adding to what
-    /// it covers: a flat surface seen edge-on then does not spill past its outline.
+    /// it covers: a flat splat seen edge-on fades instead of covering the blur's width.
     pub compensate_blur: bool,
 }
 
