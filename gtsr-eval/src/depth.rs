@@ -324,18 +324,16 @@ impl DepthComparison {
         let rank = |q: f64| ((q * k as f64).ceil() as usize).clamp(1, k) - 1;
         let quantiles = DEPTH_QUANTILES.map(|q| signed[rank(q)] as f64);
         let inner = &signed[rank(DEPTH_QUANTILES[0])..=rank(DEPTH_QUANTILES[4])];
-        let (off_sum, off_n) = self
-            .depth_err
-            .iter()
-            .zip(&self.at_edge)
-            .filter(|(_, edge)| !**edge)
-            .fold((0.0f64, 0usize), |(s, n), (e, _)| (s + *e as f64, n + 1));
-        let (far_sum, far_n) = self
-            .depth_err
-            .iter()
-            .zip(&self.far_side)
-            .filter(|(_, far)| **far)
-            .fold((0.0f64, 0usize), |(s, n), (e, _)| (s + *e as f64, n + 1));
+        // The signed errors' sum and count over the pixels whose flag equals `keep`.
+        let sum_where = |flags: &[bool], keep: bool| {
+            self.depth_err
+                .iter()
+                .zip(flags)
+                .filter(|(_, f)| **f == keep)
+                .fold((0.0f64, 0usize), |(s, n), (e, _)| (s + *e as f64, n + 1))
+        };
+        let (off_sum, off_n) = sum_where(&self.at_edge, false);
+        let (far_sum, far_n) = sum_where(&self.far_side, true);
         Some(DepthMetrics {
             depth_mean_abs: mean(&abs),
             depth_median_abs: median(abs),

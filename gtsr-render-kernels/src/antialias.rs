@@ -98,16 +98,9 @@ pub fn blur_compensation(
     });
     // The EWA Jacobian at the mean, as the kernels evaluate it.
     let z = p[2].clone().clamp_min(cam.near);
-    let margin = crate::config::FRUSTUM_MARGIN;
-    let (wd, hd) = (f64::from(cam.width), f64::from(cam.height));
-    let tx = (p[0].clone() / z.clone()).clamp(
-        (-margin * wd - cam.cx) / cam.fx,
-        ((1.0 + margin) * wd - cam.cx) / cam.fx,
-    ) * z.clone();
-    let ty = (p[1].clone() / z.clone()).clamp(
-        (-margin * hd - cam.cy) / cam.fy,
-        ((1.0 + margin) * hd - cam.cy) / cam.fy,
-    ) * z.clone();
+    let (lx, ly) = cam.jacobian_limits();
+    let tx = (p[0].clone() / z.clone()).clamp(lx[0], lx[1]) * z.clone();
+    let ty = (p[1].clone() / z.clone()).clamp(ly[0], ly[1]) * z.clone();
     let iz = z.recip();
     let iz2 = iz.clone().powi_scalar(2);
     let (j00, j11) = (iz.clone() * cam.fx, iz * cam.fy);

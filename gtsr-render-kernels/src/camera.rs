@@ -216,6 +216,23 @@ impl Camera {
         ]
     }
 
+    /// The ranges `[lo, hi]` of `x/z` and of `y/z` at which the EWA Jacobian is evaluated:
+    /// the frame widened by [`crate::config::FRUSTUM_MARGIN`] on every side.
+    pub fn jacobian_limits(&self) -> ([f64; 2], [f64; 2]) {
+        let m = crate::config::FRUSTUM_MARGIN;
+        let (w, h) = (f64::from(self.width), f64::from(self.height));
+        (
+            [
+                (-m * w - self.cx) / self.fx,
+                ((1.0 + m) * w - self.cx) / self.fx,
+            ],
+            [
+                (-m * h - self.cy) / self.fy,
+                ((1.0 + m) * h - self.cy) / self.fy,
+            ],
+        )
+    }
+
     /// Number of 16x16 tiles along x and y.
     pub fn tile_grid(&self) -> (u32, u32) {
         (

@@ -478,11 +478,10 @@ fn write_strips(
     Ok(tests.len())
 }
 
-/// [`DepthMetrics::depth_mean_signed_off_edges`] x1e3 for the log (`-` when every pixel lies
-/// on an occluding edge).
-fn off_edges(d: &DepthMetrics) -> String {
-    d.depth_mean_signed_off_edges
-        .map_or("-".into(), |v| format!("{:+.2}", v * 1e3))
+/// A signed mean over a subset of the pixels x1e3 for the log (`-` when the subset is empty,
+/// e.g. [`DepthMetrics::depth_mean_signed_off_edges`] when every pixel lies on an edge).
+fn signed_x1e3(v: Option<f64>) -> String {
+    v.map_or("-".into(), |v| format!("{:+.2}", v * 1e3))
 }
 
 /// Final outputs: mesh, splats, renders, metrics, error-against-time plot.
@@ -639,10 +638,9 @@ pub fn finish(
             q.join(" / "),
             d.depth_mean_signed_inner * 1e3,
             100.0 * d.edge_share,
-            off_edges(d),
+            signed_x1e3(d.depth_mean_signed_off_edges),
             100.0 * d.far_side_share,
-            d.depth_mean_signed_far_side
-                .map_or("-".into(), |v| format!("{:+.2}", v * 1e3))
+            signed_x1e3(d.depth_mean_signed_far_side)
         );
     }
     if let Some(d) = &e.depth_area {
@@ -652,7 +650,7 @@ pub fn finish(
             d.depth_median_abs * 1e3,
             d.depth_mean_abs * 1e3,
             d.depth_mean_signed * 1e3,
-            off_edges(d)
+            signed_x1e3(d.depth_mean_signed_off_edges)
         );
     }
     Ok(())

@@ -300,12 +300,10 @@ fn attach_hull_depth(
         let md = caster.render(&camera);
         let shape = [k.height as usize, k.width as usize];
         let device = v.rays.device();
-        v.hull_occluders = (occluders > 0.0).then(|| {
-            burn::tensor::Tensor::from_data(
-                burn::tensor::TensorData::new(md.occluders(occluders), shape),
-                &device,
-            )
-        });
+        let map = |values: Vec<f32>| {
+            burn::tensor::Tensor::from_data(burn::tensor::TensorData::new(values, shape), &device)
+        };
+        v.hull_occluders = (occluders > 0.0).then(|| map(md.occluders(occluders)));
         let cut = if edges > 0.0 {
             md.occluding_edges(edges)
         } else {
@@ -315,10 +313,7 @@ fn attach_hull_depth(
         for (d, _) in depth.iter_mut().zip(cut).filter(|(_, e)| *e) {
             *d = 0.0;
         }
-        v.hull_depth = Some(burn::tensor::Tensor::from_data(
-            burn::tensor::TensorData::new(depth, shape),
-            &device,
-        ));
+        v.hull_depth = Some(map(depth));
     }
 }
 

@@ -2,7 +2,7 @@
 //! product.
 
 use super::arith::{self, F32x16};
-use crate::config::{ALPHA_MIN, FRUSTUM_MARGIN, QUAT_MIN_NORM2, SplatConfig, TILE_SIZE, status};
+use crate::config::{ALPHA_MIN, QUAT_MIN_NORM2, SplatConfig, TILE_SIZE, status};
 use crate::scalar::Real;
 
 type M3<F> = [[F; 3]; 3];
@@ -52,9 +52,7 @@ impl CamF<f32> {
 impl<F: Real> CamF<F> {
     pub fn new(cfg: &SplatConfig) -> Self {
         let c = &cfg.camera;
-        let w = f64::from(c.width);
-        let h = f64::from(c.height);
-        let m = FRUSTUM_MARGIN;
+        let (lim_x, lim_y) = c.jacobian_limits();
         Self {
             rot: c.rotation.map(|r| r.map(F::c)),
             trans: c.translation.map(F::c),
@@ -66,14 +64,8 @@ impl<F: Real> CamF<F> {
             height: c.height,
             near: F::c(c.near),
             far: F::c(c.far),
-            lim_x: [
-                F::c((-m * w - c.cx) / c.fx),
-                F::c(((1.0 + m) * w - c.cx) / c.fx),
-            ],
-            lim_y: [
-                F::c((-m * h - c.cy) / c.fy),
-                F::c(((1.0 + m) * h - c.cy) / c.fy),
-            ],
+            lim_x: lim_x.map(F::c),
+            lim_y: lim_y.map(F::c),
             blur: F::c(cfg.blur_px2),
         }
     }
