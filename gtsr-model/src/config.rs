@@ -767,11 +767,11 @@ pub struct TrainConfig {
     #[arg(long = "blur", id = "train.blur_px2", value_name = "PX2", default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).blur_px2, value_parser = parse_non_negative, hide_default_value = true, help_heading = "Training")]
     pub blur_px2: f64,
     /// Scale every splat's opacity so that the blur does not add to what it covers
-    /// (`gtsr_render_kernels::blur_compensation`, Mip-Splatting's 2D filter): a flat surface
-    /// Gaussian seen edge-on, dilated to the blur's width, fades accordingly. Sharper depth
-    /// maps, the same meshes, about a third more time per step
-    /// (`docs/2026-11-27-edge-bleed-and-blur-compensation.md`). Off in configs written before
-    /// this setting.
+    /// (`SplatConfig::compensate_blur`, Mip-Splatting's 2D filter, in the projection kernels):
+    /// a flat surface Gaussian seen edge-on, dilated to the blur's width, fades accordingly.
+    /// Sharper depth maps, the same meshes, a few percent more time per step; below 256 px
+    /// the normals lose a degree or two (`docs/2026-11-27-compensation-in-the-kernels.md`).
+    /// Off in configs written before this setting.
     #[serde(default)]
     #[arg(long = "compensate-blur", id = "train.compensate_blur", value_name = "BOOL", action = ArgAction::Set, default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).compensate_blur, help_heading = "Training")]
     pub compensate_blur: bool,

@@ -41,7 +41,7 @@ pub struct Model {
     /// Screen-space blur of every render, pixels^2 ([`SplatConfig::blur_px2`]).
     pub blur_px2: f64,
     /// Whether every render scales the opacities by the blur's compensation
-    /// ([`gtsr_render_kernels::blur_compensation`], computed once per set and camera), as
+    /// ([`SplatConfig::compensate_blur`], applied by the kernels), as
     /// [`crate::config::TrainConfig::compensate_blur`].
     pub compensate_blur: bool,
     /// The least opacity of a surface Gaussian (`[0, 1)`; 0: the plain logistic), as
@@ -129,51 +129,21 @@ struct Prepared {
     quats: Tensor<2>,
     scales: Tensor<2>,
     opacities: Tensor<1>,
-    /// With [`Model::compensate_blur`]: the blur's compensation of each Gaussian for this
-    /// camera (`gtsr_render_kernels::blur_compensation`), which every pass multiplies into the
-    /// opacities it splats ([`splat_inputs`]).
-    compensation: Option<Tensor<1>>,
     colours: Tensor<2>,
     normals_w: Option<Tensor<2>>,
     offsets: Option<Tensor<2>>,
 }
 
-/// The render settings of every pass: black background, 3DGS's hard cut-off. The blur's
-/// compensation, when on, is already in the opacities ([`Prepared::compensation`]).
-fn splat_config(camera: &Camera, channels: usize, blur_px2: f64) -> SplatConfig {
-    SplatConfig {
-        camera: camera.clone(),
-        background: vec![0.0; channels],
-        cutoff: AlphaCutoff::Hard,
-        blur_px2,
-        compensate_blur: false,
-    }
-}
-
-/// The kernels' inputs for a prepared set, `opacities` times the set's blur compensation.
+/// The kernels' inputs for a prepared set with `opacities` and `features`.
 fn splat_inputs(p: &Prepared, opacities: Tensor<1>, features: Tensor<2>) -> SplatInputs {
     SplatInputs {
         means: p.means.clone(),
         quats: p.quats.clone(),
         scales: p.scales.clone(),
-        opacities: match &p.compensation {
-            Some(c) => opacities * c.clone(),
-            None => opacities,
-        },
+        opacities,
         features,
         xy_offsets: p.offsets.clone(),
     }
-}
-
-fn splat(
-    p: &Prepared,
-    opacities: Tensor<1>,
-    features: Tensor<2>,
-    camera: &Camera,
-    blur_px2: f64,
-) -> Result<gtsr_render_kernels::RenderOutput, ModelError> {
-    let cfg = splat_config(camera, features.dims()[1], blur_px2);
-    Ok(render(splat_inputs(p, opacities, features), &cfg)?)
 }
 
 /// The depth-only [`GeometryMaps`] from `[H, W, 4]` maps of normal and plane distance.
@@ -205,10 +175,6 @@ fn cat_prepared(a: &Prepared, b: &Prepared) -> Prepared {
         quats: cat2(&a.quats, &b.quats),
         scales: cat2(&a.scales, &b.scales),
         opacities: Tensor::cat(vec![a.opacities.clone(), b.opacities.clone()], 0),
-        compensation: match (&a.compensation, &b.compensation) {
-            (Some(x), Some(y)) => Some(Tensor::cat(vec![x.clone(), y.clone()], 0)),
-            _ => None,
-        },
         colours: cat2(&a.colours, &b.colours),
         normals_w: None,
         offsets: match (&a.offsets, &b.offsets) {
@@ -230,6 +196,29 @@ fn radii_and_tiles(aux: Tensor<2>) -> (Vec<f32>, u64) {
 }
 
 impl Model {
+    /// The render settings of every pass: black background, 3DGS's hard cut-off, the model's
+    /// blur and its compensation.
+    fn splat_config(&self, camera: &Camera, channels: usize) -> SplatConfig {
+        SplatConfig {
+            camera: camera.clone(),
+            background: vec![0.0; channels],
+            cutoff: AlphaCutoff::Hard,
+            blur_px2: self.blur_px2,
+            compensate_blur: self.compensate_blur,
+        }
+    }
+
+    fn splat(
+        &self,
+        p: &Prepared,
+        opacities: Tensor<1>,
+        features: Tensor<2>,
+        camera: &Camera,
+    ) -> Result<gtsr_render_kernels::RenderOutput, ModelError> {
+        let cfg = self.splat_config(camera, features.dims()[1]);
+        Ok(render(splat_inputs(p, opacities, features), &cfg)?)
+    }
+
     /// `[N]` opacities of `set`: the surface set's above [`Model::surface_opacity_floor`].
     pub fn opacities(&self, set: &GaussianSet) -> Tensor<1> {
         match set.kind {
@@ -306,13 +295,8 @@ impl Model {
             normals.then(|| facing_normals(&quat_to_matrix(&quats), &log_scales, &means, centre));
         let n = set.len();
         let scales = log_scales.exp();
-        let compensation = self.compensate_blur.then(|| {
-            let cfg = splat_config(camera, 1, self.blur_px2);
-            gtsr_render_kernels::blur_compensation(&means, &quats, &scales, &cfg)
-        });
         Prepared {
             opacities: self.opacities(set),
-            compensation,
             scales,
             means,
             quats,
@@ -388,12 +372,11 @@ impl Model {
             if opts.geometry {
                 feats.push(self.geometry_features(&surf, camera, material, opts.spread));
             }
-            let out = splat(
+            let out = self.splat(
                 &surf,
                 surf.opacities.clone(),
                 layout::cat_cols(feats),
                 camera,
-                self.blur_px2,
             )?;
             passes += 1;
             let (radii, tiles) = radii_and_tiles(out.aux);
@@ -422,7 +405,6 @@ impl Model {
                 quats: surf.quats.clone(),
                 scales: surf.scales.clone(),
                 opacities: surf_op,
-                compensation: surf.compensation.clone(),
                 colours: surf.colours.clone(),
                 normals_w: None,
                 offsets: surf.offsets.clone(),
@@ -434,13 +416,7 @@ impl Model {
                 }
                 None => (surf_w, None),
             };
-            let out = splat(
-                &all,
-                all.opacities.clone(),
-                all.colours.clone(),
-                camera,
-                self.blur_px2,
-            )?;
+            let out = self.splat(&all, all.opacities.clone(), all.colours.clone(), camera)?;
             passes += 1;
             let (radii, tiles) = radii_and_tiles(out.aux);
             tile_splats += tiles;
@@ -450,7 +426,7 @@ impl Model {
 
         if opts.geometry && geometry_out.is_none() {
             let feats = self.geometry_features(&surf, camera, material, opts.spread);
-            let out = splat(&surf, surf.opacities.clone(), feats, camera, self.blur_px2)?;
+            let out = self.splat(&surf, surf.opacities.clone(), feats, camera)?;
             passes += 1;
             let (_, tiles) = radii_and_tiles(out.aux);
             tile_splats += tiles;
@@ -487,7 +463,7 @@ impl Model {
                 } else {
                     ip.colours.clone()
                 };
-                let out = splat(ip, ip.opacities.clone(), colours, camera, self.blur_px2)?;
+                let out = self.splat(ip, ip.opacities.clone(), colours, camera)?;
                 passes += 1;
                 tile_splats += radii_and_tiles(out.aux).1;
                 Some(out.image)
@@ -540,7 +516,7 @@ impl Model {
     ) -> Result<GeometryMaps, ModelError> {
         let surf = self.prepare(&self.surface, camera, true, false);
         let feats = self.geometry_features(&surf, camera, false, false);
-        let out = splat(&surf, surf.opacities.clone(), feats, camera, self.blur_px2)?;
+        let out = self.splat(&surf, surf.opacities.clone(), feats, camera)?;
         let tiles = radii_and_tiles(out.aux).1;
         Ok(depth_maps(out.image, out.alpha, rays, tiles))
     }
@@ -561,12 +537,11 @@ impl Model {
             quats: constant(&surf.quats),
             scales: constant(&surf.scales),
             opacities: surf.opacities.clone(),
-            compensation: surf.compensation.as_ref().map(|c| c.clone().detach()),
             colours: constant(&surf.colours),
             normals_w: None,
             offsets: surf.offsets.as_ref().map(constant),
         };
-        let out = splat(&fixed, surf.opacities.clone(), feats, camera, self.blur_px2)?;
+        let out = self.splat(&fixed, surf.opacities.clone(), feats, camera)?;
         let tiles = radii_and_tiles(out.aux).1;
         Ok(depth_maps(out.image, out.alpha, rays, tiles))
     }
@@ -592,11 +567,7 @@ impl Model {
             opacities: self.opacities(set),
             xy_offsets: None,
         };
-        // Without a prepared set (no colours needed), the kernels apply the compensation.
-        let cfg = SplatConfig {
-            compensate_blur: self.compensate_blur,
-            ..splat_config(camera, 1, self.blur_px2)
-        };
+        let cfg = self.splat_config(camera, 1);
         Ok(gtsr_render_kernels::render_crossing(inputs, &cfg, threshold)?.observed)
     }
 
@@ -614,7 +585,7 @@ impl Model {
     ) -> Result<GeometryMaps, ModelError> {
         let surf = self.prepare(&self.surface, camera, true, false);
         let feats = self.geometry_features(&surf, camera, false, false);
-        let cfg = splat_config(camera, feats.dims()[1], self.blur_px2);
+        let cfg = self.splat_config(camera, feats.dims()[1]);
         let inputs = splat_inputs(&surf, surf.opacities.clone(), feats);
         let out = gtsr_render_kernels::render_crossing(inputs, &cfg, threshold)?;
         Ok(depth_maps(out.features, out.found, rays, 0))

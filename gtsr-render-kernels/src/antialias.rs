@@ -6,8 +6,10 @@
 //! Gaussian it stands for: a surface spills past its occluding edges and silhouettes. Scaling the
 //! opacity by `sqrt(det Sigma / det(Sigma + b I))` keeps each splat's integral on screen that of
 //! the unblurred Gaussian, while the blur still keeps it at least a pixel filter wide.
-//! [`render`](crate::render) applies it when [`SplatConfig::compensate_blur`] is set; the factor
-//! itself is [`blur_compensation`], a Burn expression differentiated by Burn's autodiff.
+//! The kernels apply it in the projection, with its gradient, when
+//! [`SplatConfig::compensate_blur`] is set. [`blur_compensation`] computes the same factor as a
+//! Burn expression differentiated by Burn's autodiff: to inspect or weigh the Gaussians
+//! outside a render, and as the kernels' reference in the tests.
 
 use burn::tensor::Tensor;
 

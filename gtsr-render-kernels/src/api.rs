@@ -4,7 +4,6 @@ use burn::backend::Dispatch;
 use burn::tensor::{Device, Tensor, TensorData};
 use thiserror::Error;
 
-use crate::antialias::blur_compensation;
 use crate::backend::{SplatBackend, supported_dtype};
 use crate::config::SplatConfig;
 
@@ -237,7 +236,6 @@ fn validate(inputs: &SplatInputs, config: &SplatConfig) -> Result<Tensor<2>, Ren
 /// ```
 pub fn render(inputs: SplatInputs, config: &SplatConfig) -> Result<RenderOutput, RenderError> {
     let xy_offsets = validate(&inputs, config)?;
-    let inputs = compensated(inputs, config);
     let c = inputs.features.dims()[1];
     let (h, w) = (config.camera.height as usize, config.camera.width as usize);
     let (out, aux) = <Dispatch as SplatBackend>::splat(
@@ -268,22 +266,6 @@ pub fn render(inputs: SplatInputs, config: &SplatConfig) -> Result<RenderOutput,
     let image = flat.clone().matmul(select(0..c)).reshape([h, w, c]);
     let alpha = flat.matmul(select(c..c + 1)).reshape([h, w]);
     Ok(RenderOutput { image, alpha, aux })
-}
-
-/// `inputs` with their opacities scaled by [`blur_compensation`] when `config` asks for it.
-fn compensated(inputs: SplatInputs, config: &SplatConfig) -> SplatInputs {
-    if !config.compensate_blur {
-        return inputs;
-    }
-    // A non-finite opacity (culled) takes no factor, so that its zero gradient is not turned
-    // into NaN on the factor's way back.
-    let culled = inputs.opacities.clone().is_finite().bool_not();
-    let c = blur_compensation(&inputs.means, &inputs.quats, &inputs.scales, config)
-        .mask_fill(culled, 1.0);
-    SplatInputs {
-        opacities: inputs.opacities * c,
-        ..inputs
-    }
 }
 
 /// The result of [`render_crossing`] (not differentiable).
@@ -343,7 +325,6 @@ pub fn render_crossing(
         return Err(RenderError::Threshold(threshold));
     }
     let xy_offsets = validate(&inputs, config)?;
-    let inputs = compensated(inputs, config);
     let device = inputs.means.device();
     let dtype = inputs.means.dtype();
     if dtype == burn::tensor::DType::F64 {

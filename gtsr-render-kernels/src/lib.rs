@@ -21,8 +21,9 @@
 //!   [`SplatConfig::blur_px2`] (3DGS's 0.3 by default), the Jacobian evaluated at the mean with
 //!   `x/z`, `y/z` clamped to 15% outside the image; means outside `[near, far]`, non-finite
 //!   parameters and quaternions of squared norm below `1e-8` are culled (status in `aux`).
-//!   With [`SplatConfig::compensate_blur`] each opacity is first scaled by
-//!   `sqrt(det Sigma / det(Sigma + b I))` ([`blur_compensation`], Mip-Splatting's 2D filter).
+//!   With [`SplatConfig::compensate_blur`] the projection scales each opacity by
+//!   `sqrt(det Sigma / det(Sigma + b I))` (Mip-Splatting's 2D filter), forward and backward;
+//!   [`blur_compensation`] is the same factor as a Burn expression.
 //! - Blending: `alpha = min(0.99, o * exp(-d^T Sigma'^-1 d / 2))`, skipped below `1/255`;
 //!   front to back by camera depth; a pixel stops before its transmittance would drop below
 //!   `1e-4`; `C = sum f_i alpha_i T_i + T_final * background`, `alpha_out = 1 - T_final`.

@@ -497,6 +497,20 @@ pub fn weighted_loss_gradients_with(
     config: &SplatConfig,
     weights: &[f64],
 ) -> Result<SceneGradients, crate::RenderError> {
+    weighted_loss_gradients_through(device, scene, dtype, config, weights, |i| i)
+}
+
+/// [`weighted_loss_gradients_with`] where `through` turns the scene's leaf tensors into the
+/// rendered inputs (a Burn expression, differentiated with the render): the gradients are
+/// those of the leaves.
+pub fn weighted_loss_gradients_through(
+    device: &Device,
+    scene: &HostScene,
+    dtype: DType,
+    config: &SplatConfig,
+    weights: &[f64],
+    through: impl FnOnce(SplatInputs) -> SplatInputs,
+) -> Result<SceneGradients, crate::RenderError> {
     let device = device.clone().autodiff();
     let inp = scene.inputs(&device, dtype);
     let leaves = SplatInputs {
@@ -507,7 +521,7 @@ pub fn weighted_loss_gradients_with(
         features: inp.features.require_grad(),
         xy_offsets: inp.xy_offsets.map(|t| t.require_grad()),
     };
-    let out = crate::render(leaves.clone(), config)?;
+    let out = crate::render(through(leaves.clone()), config)?;
     let (h, w) = (scene.camera.height as usize, scene.camera.width as usize);
     let c = scene.channels;
     let wt = Tensor::<3>::from_data(

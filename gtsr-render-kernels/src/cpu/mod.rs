@@ -430,8 +430,9 @@ pub fn backward<F: Real>(
                 }
             }
         });
-    // The screen gradients of the opacity and the offsets, and the features' rows, are the
-    // gradients of those inputs; the projection VJP gives the mean's, rotation's and scales'.
+    // The screen gradients of the offsets and the features' rows are the gradients of those
+    // inputs; the projection VJP gives the mean's, rotation's, scales' and opacity's (the
+    // opacity blended is the input's times the blur's compensation, when on).
     let mut out = HostGradients {
         means: vec![F::zero(); 3 * n],
         quats: vec![F::zero(); 4 * n],
@@ -447,6 +448,7 @@ pub fn backward<F: Real>(
         .zip(sums.par_chunks(slot))
         .with_min_len(1024)
         .for_each(|(((dop, dxy), df), acc)| {
+            // Culled Gaussians keep it (zero); the projection VJP replaces the others'.
             *dop = acc[5];
             dxy.copy_from_slice(&acc[..2]);
             df.copy_from_slice(&acc[SLOT_FIXED..]);
@@ -462,12 +464,14 @@ pub fn backward<F: Real>(
         let means = F::slice_as_f32_mut(&mut out.means).expect("f32");
         let quats = F::slice_as_f32_mut(&mut out.quats).expect("f32");
         let scales = F::slice_as_f32_mut(&mut out.scales).expect("f32");
+        let opacities = F::slice_as_f32_mut(&mut out.opacities).expect("f32");
         means
             .par_chunks_mut(RUN * 3)
             .zip(quats.par_chunks_mut(RUN * 4))
             .zip(scales.par_chunks_mut(RUN * 3))
+            .zip(opacities.par_chunks_mut(RUN))
             .enumerate()
-            .for_each(|(k, ((dm, dq), ds))| {
+            .for_each(|(k, (((dm, dq), ds), dop))| {
                 let first = k * RUN;
                 state.path.run(project::VjpLanes {
                     g: &g32,
@@ -479,6 +483,7 @@ pub fn backward<F: Real>(
                     means: dm,
                     quats: dq,
                     scales: ds,
+                    opacities: dop,
                 });
             });
     } else {
@@ -486,23 +491,25 @@ pub fn backward<F: Real>(
             .par_chunks_mut(3)
             .zip(out.quats.par_chunks_mut(4))
             .zip(out.scales.par_chunks_mut(3))
+            .zip(out.opacities.par_iter_mut())
             .zip(sums.par_chunks(slot))
             .zip(position.par_iter())
             .enumerate()
             .with_min_len(256)
-            .for_each(|(i, ((((dm, dq), ds), acc), &j))| {
+            .for_each(|(i, (((((dm, dq), ds), dop), acc), &j))| {
                 if j == u32::MAX {
                     return; // culled: zero gradients
                 }
-                let gg = project::project_vjp(
-                    &g.get(i),
-                    &cam,
-                    [acc[0], acc[1]],
-                    [acc[2], acc[3], acc[4]],
-                );
+                let d = project::ScreenGrad {
+                    xy: [acc[0], acc[1]],
+                    conic: [acc[2], acc[3], acc[4]],
+                    opacity: acc[5],
+                };
+                let gg = project::project_vjp(&g.get(i), &cam, d);
                 dm.copy_from_slice(&gg.mean);
                 dq.copy_from_slice(&gg.quat);
                 ds.copy_from_slice(&gg.scale);
+                *dop = gg.opacity;
             });
     }
     lap(Phase::Gather, start);

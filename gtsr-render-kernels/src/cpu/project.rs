@@ -2,6 +2,7 @@
 //! product.
 
 use super::arith::{self, F32x16};
+use crate::antialias::MIN_COMPENSATION;
 use crate::config::{ALPHA_MIN, QUAT_MIN_NORM2, SplatConfig, TILE_SIZE, status};
 use crate::scalar::Real;
 
@@ -25,6 +26,9 @@ pub(crate) struct CamF<F> {
     pub lim_y: [F; 2],
     /// Screen-space blur (pixels^2).
     pub blur: F,
+    /// Whether each opacity is scaled by the blur's compensation
+    /// ([`SplatConfig::compensate_blur`]).
+    pub compensate: bool,
 }
 
 impl CamF<f32> {
@@ -45,6 +49,7 @@ impl CamF<f32> {
             lim_x: self.lim_x.map(b),
             lim_y: self.lim_y.map(b),
             blur: b(self.blur),
+            compensate: self.compensate,
         }
     }
 }
@@ -67,6 +72,7 @@ impl<F: Real> CamF<F> {
             lim_x: lim_x.map(F::c),
             lim_y: lim_y.map(F::c),
             blur: F::c(cfg.blur_px2),
+            compensate: cfg.compensate_blur,
         }
     }
 }
@@ -202,8 +208,14 @@ pub(crate) struct Fwd<T: arith::Arith> {
     j: [[T; 3]; 2],
     /// 2D covariance (with blur) as (a, b, c).
     cov: [T; 3],
+    /// Its diagonal without the blur.
+    raw: [T; 2],
     det: T,
     conic: [T; 3],
+    /// With [`CamF::compensate`]: `det(cov - blur) / det(cov)` before the clamp; else 1.
+    ratio: T,
+    /// The opacity's factor: `sqrt` of the clamped ratio (1 without compensation).
+    comp: T,
 }
 
 #[inline]
@@ -273,13 +285,18 @@ pub(crate) fn fwd_math<T: arith::Arith>(
     }
     let dot3 = |u: [T; 3], v: [T; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
     let blur = cam.blur;
-    let cov = [
-        dot3(js[0], j[0]) + blur,
-        dot3(js[0], j[1]),
-        dot3(js[1], j[1]) + blur,
-    ];
+    let raw = [dot3(js[0], j[0]), dot3(js[1], j[1])];
+    let cov = [raw[0] + blur, dot3(js[0], j[1]), raw[1] + blur];
     let det = cov[0] * cov[2] - cov[1] * cov[1];
     let conic = [cov[2] / det, -cov[1] / det, cov[0] / det];
+    let (ratio, comp) = if cam.compensate {
+        // Mip-Splatting's 2D filter: the blurred splat keeps the unblurred one's integral.
+        let ratio = (raw[0] * raw[1] - cov[1] * cov[1]) / det;
+        let floor = T::c(MIN_COMPENSATION * MIN_COMPENSATION);
+        (ratio, ratio.max(floor).min(T::c(1.0)).sqrt())
+    } else {
+        (T::c(1.0), T::c(1.0))
+    };
     Fwd {
         n2,
         qn,
@@ -292,8 +309,11 @@ pub(crate) fn fwd_math<T: arith::Arith>(
         clamped,
         j,
         cov,
+        raw,
         det,
         conic,
+        ratio,
+        comp,
     }
 }
 
@@ -342,7 +362,7 @@ fn on_screen<F: Real>(g: &GaussIn<F>, f: &Fwd<F>, cam: &CamF<F>) -> Result<Splat
         cam.fy * f.p[1] / z + cam.cy + g.xy_offset[1],
     ];
     // alpha = o * exp(-q/2) >= ALPHA_MIN  <=>  q <= 2 ln(o / ALPHA_MIN).
-    let o = g.opacity;
+    let o = g.opacity * f.comp;
     let level = F::c(2.0) * (o / F::c(ALPHA_MIN)).ln();
     if level.is_nan() || level <= F::zero() {
         return Err(status::NOT_ON_SCREEN);
@@ -387,39 +407,49 @@ fn on_screen<F: Real>(g: &GaussIn<F>, f: &Fwd<F>, cam: &CamF<F>) -> Result<Splat
     })
 }
 
-/// Gradients of one Gaussian's mean, rotation and scales (those of the opacity and the screen
-/// offset are the screen gradients themselves).
+/// Gradients of one Gaussian's mean, rotation, scales and opacity (that of the screen offset is
+/// the screen gradient itself).
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct GaussGrad<F> {
     pub mean: [F; 3],
     pub quat: [F; 4],
     pub scale: [F; 3],
+    pub opacity: F,
 }
 
-/// Vector-Jacobian product of [`project_one`]: from the gradients of the screen mean and the
-/// conic (a, b, c as stored) to the mean, rotation and scales.
+/// The summed screen gradients of one splat: its mean, its conic (a, b, c as stored) and its
+/// opacity (the compensated one, as blended).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ScreenGrad<T> {
+    pub xy: [T; 2],
+    pub conic: [T; 3],
+    pub opacity: T,
+}
+
+/// Vector-Jacobian product of [`project_one`]: from the screen gradients to the mean,
+/// rotation, scales and opacity.
 pub(crate) fn project_vjp<F: Real>(
     g: &GaussIn<F>,
     cam: &CamF<F>,
-    d_xy: [F; 2],
-    d_conic: [F; 3],
+    d: ScreenGrad<F>,
 ) -> GaussGrad<F> {
     let Ok(f) = project_core(g, cam) else {
         return GaussGrad::default();
     };
-    vjp_math(&f, g.scale, cam, d_xy, d_conic)
+    vjp_math(&f, g.scale, g.opacity, cam, d)
 }
 
 /// The arithmetic of [`project_vjp`] on the forward's intermediates (of a Gaussian that was
-/// not culled).
+/// not culled) and its raw `opacity`.
 #[inline(always)]
 pub(crate) fn vjp_math<T: arith::Arith>(
     f: &Fwd<T>,
     scale: [T; 3],
+    opacity: T,
     cam: &CamF<T>,
-    d_xy: [T; 2],
-    d_conic: [T; 3],
+    d: ScreenGrad<T>,
 ) -> GaussGrad<T> {
+    let (d_xy, d_conic) = (d.xy, d.conic);
     let zero = T::c(0.0);
     let two = T::c(2.0);
     let half = T::c(0.5);
@@ -451,6 +481,25 @@ pub(crate) fn vjp_math<T: arith::Arith>(
             g_cov[i][k] = -(qg[i][0] * qm[0][k] + qg[i][1] * qm[1][k]);
         }
     }
+    let d_opacity = if cam.compensate {
+        // comp = sqrt(r), r = det(cov - blur) / det(cov), clamped: no gradient where clamped.
+        let floor = T::c(MIN_COMPENSATION * MIN_COMPENSATION);
+        let clamped = f.ratio.max(floor).min(T::c(1.0)).ne(f.ratio);
+        let d_r = T::select(clamped, zero, d.opacity * opacity * half / f.comp);
+        let b = f.cov[1];
+        let det0 = f.raw[0] * f.raw[1] - b * b;
+        let idet2 = T::c(1.0) / (f.det * f.det);
+        // The blur adds to the diagonal only: d/d(raw) = d/d(cov) on every entry.
+        g_cov[0][0] = g_cov[0][0] + d_r * (f.raw[1] * f.det - det0 * f.cov[2]) * idet2;
+        g_cov[1][1] = g_cov[1][1] + d_r * (f.raw[0] * f.det - det0 * f.cov[0]) * idet2;
+        // d r / d b = -2 b (det - det0) / det^2, shared by the two symmetric entries.
+        let off = -(d_r * b * (f.det - det0) * idet2);
+        g_cov[0][1] = g_cov[0][1] + off;
+        g_cov[1][0] = g_cov[1][0] + off;
+        d.opacity * f.comp
+    } else {
+        d.opacity
+    };
     // cov = J S J^T: dS = J^T Gc J, dJ = 2 Gc J S.
     let j = f.j;
     let s = f.sigma_c;
@@ -531,6 +580,7 @@ pub(crate) fn vjp_math<T: arith::Arith>(
         mean: d_mean,
         quat: d_quat,
         scale: d_scale,
+        opacity: d_opacity,
     }
 }
 
@@ -565,6 +615,7 @@ pub(crate) struct VjpLanes<'a> {
     pub means: &'a mut [f32],
     pub quats: &'a mut [f32],
     pub scales: &'a mut [f32],
+    pub opacities: &'a mut [f32],
 }
 
 impl pulp::WithSimd for VjpLanes<'_> {
@@ -587,8 +638,14 @@ fn vjp_lanes(v: VjpLanes<'_>) {
         let lane = |l: usize| start + l.min(len - 1);
         let sum = |d: usize| F32x16(std::array::from_fn(|l| v.sums[lane(l) * v.stride + d]));
         let (mean, quat, scale) = load_lanes(v.g, |l| v.first + lane(l));
+        let opacity = F32x16(std::array::from_fn(|l| v.g.opacities[v.first + lane(l)]));
         let f = fwd_math(mean, quat, scale, v.cam);
-        let gg = vjp_math(&f, scale, v.cam, [sum(0), sum(1)], [sum(2), sum(3), sum(4)]);
+        let d = ScreenGrad {
+            xy: [sum(0), sum(1)],
+            conic: [sum(2), sum(3), sum(4)],
+            opacity: sum(5),
+        };
+        let gg = vjp_math(&f, scale, opacity, v.cam, d);
         for l in 0..len {
             let k = start + l;
             if v.visible[k] == u32::MAX {
@@ -601,6 +658,7 @@ fn vjp_lanes(v: VjpLanes<'_>) {
             for d in 0..4 {
                 v.quats[4 * k + d] = gg.quat[d].0[l];
             }
+            v.opacities[k] = gg.opacity.0[l];
         }
         start += len;
     }
@@ -624,8 +682,11 @@ impl Fwd<F32x16> {
             clamped: self.clamped.map(|m| m[l]),
             j: self.j.map(|r| r.map(|v| v.0[l])),
             cov: self.cov.map(|v| v.0[l]),
+            raw: self.raw.map(|v| v.0[l]),
             det: a(&self.det),
             conic: self.conic.map(|v| v.0[l]),
+            ratio: a(&self.ratio),
+            comp: a(&self.comp),
         }
     }
 }
@@ -722,8 +783,15 @@ mod tests {
         .collect();
         let mut rng = StdRng::seed_from_u64(3);
         let mut clamped = 0;
-        for scene in scenes() {
-            let cfg = scene.config(AlphaCutoff::Hard);
+        let mut faded = 0;
+        let cases = scenes()
+            .into_iter()
+            .flat_map(|s| [(s.clone(), false), (s, true)]);
+        for (scene, compensate) in cases {
+            let cfg = SplatConfig {
+                compensate_blur: compensate,
+                ..scene.config(AlphaCutoff::Hard)
+            };
             let buffers = scene.to_f32();
             let g = host(&buffers);
             let cam = CamF::<f32>::new(&cfg);
@@ -748,6 +816,10 @@ mod tests {
                     f.clamped[0] || f.clamped[1]
                 })
                 .count();
+            faded += visible
+                .iter()
+                .filter(|&&i| project_core(&g.get(i as usize), &cam).unwrap().comp < 0.5)
+                .count();
             // Culled Gaussians are marked `u32::MAX` and get zeros, as in the backward pass.
             let marks: Vec<u32> = scalar
                 .iter()
@@ -760,10 +832,15 @@ mod tests {
                 .flat_map(|i| {
                     let s = &sums[i * 6..i * 6 + 6];
                     if marks[i] == u32::MAX {
-                        return vec![0.0; 10];
+                        return vec![0.0; 11];
                     }
-                    let gg = project_vjp(&g.get(i), &cam, [s[0], s[1]], [s[2], s[3], s[4]]);
-                    [gg.mean.as_slice(), &gg.quat, &gg.scale].concat()
+                    let d = ScreenGrad {
+                        xy: [s[0], s[1]],
+                        conic: [s[2], s[3], s[4]],
+                        opacity: s[5],
+                    };
+                    let gg = project_vjp(&g.get(i), &cam, d);
+                    [gg.mean.as_slice(), &gg.quat, &gg.scale, &[gg.opacity]].concat()
                 })
                 .collect();
             for &path in &paths {
@@ -777,10 +854,11 @@ mod tests {
                     out: &mut lanes,
                 });
                 assert_eq!(format!("{lanes:?}"), format!("{scalar:?}"), "{path:?}");
-                let (mut dm, mut dq, mut ds) = (
+                let (mut dm, mut dq, mut ds, mut dop) = (
                     vec![0.0; 3 * g.len()],
                     vec![0.0; 4 * g.len()],
                     vec![0.0; 3 * g.len()],
+                    vec![0.0; g.len()],
                 );
                 path.run(VjpLanes {
                     g: &g,
@@ -792,6 +870,7 @@ mod tests {
                     means: &mut dm,
                     quats: &mut dq,
                     scales: &mut ds,
+                    opacities: &mut dop,
                 });
                 let vjp: Vec<f32> = (0..g.len())
                     .flat_map(|i| {
@@ -799,6 +878,7 @@ mod tests {
                             &dm[3 * i..3 * i + 3],
                             &dq[4 * i..4 * i + 4],
                             &ds[3 * i..3 * i + 3],
+                            &dop[i..i + 1],
                         ]
                         .concat()
                     })
@@ -810,6 +890,10 @@ mod tests {
         assert!(
             clamped > 10,
             "only {clamped} Gaussians met the Jacobian's clamp"
+        );
+        assert!(
+            faded > 10,
+            "only {faded} compensated Gaussians lost half their opacity"
         );
     }
 }

@@ -20,8 +20,9 @@ use crate::config::TILE_SIZE;
 /// x1, y1 (the rectangle as exact small integers).
 pub const PROJ: u32 = 12;
 /// Floats in the camera buffer: rotation (row-major 3x3), translation, fx, fy, cx, cy, near,
-/// far, x/z limits, y/z limits, screen-space blur (pixels^2).
-pub const CAM: u32 = 23;
+/// far, x/z limits, y/z limits, screen-space blur (pixels^2), 1 to compensate the blur in the
+/// opacity (else 0).
+pub const CAM: u32 = 24;
 /// Threads per tile (one per pixel).
 pub const TILE_THREADS: u32 = TILE_SIZE * TILE_SIZE;
 /// Splats loaded into shared memory per round in the forward pass.
@@ -37,6 +38,8 @@ const ALPHA_MIN: f32 = 1.0 / 255.0;
 const ALPHA_MAX: f32 = 0.99;
 const T_MIN: f32 = 1e-4;
 const QUAT_MIN_NORM2: f32 = 1e-8;
+/// `MIN_COMPENSATION^2` (`crate::antialias::MIN_COMPENSATION`): the clamp of the ratio.
+const MIN_RATIO: f32 = 1e-6;
 
 // Layout of the intermediate values of the projection (`core`).
 const QN: usize = 0; // 4
@@ -54,8 +57,11 @@ const J11: usize = 32;
 const J12: usize = 33;
 const COV: usize = 34; // 3
 const CON: usize = 37; // 3
+const RAW: usize = 40; // 2, the covariance's diagonal without the blur
+const RATIO: usize = 42; // det(cov - blur) / det(cov), 1 without compensation
+const COMP: usize = 43; // the opacity's factor, sqrt of the clamped ratio
 /// Size of the `core` array.
-const CORE: usize = 40;
+const CORE: usize = 44;
 
 /// Whether `x` is neither infinite nor NaN, from its bits (robust to fast-math compilers).
 #[cube]
@@ -187,13 +193,21 @@ fn project_core(
     let js02 = j00 * out[SC + 2] + j02 * out[SC + 8];
     let js11 = j11 * out[SC + 4] + j12 * out[SC + 7];
     let js12 = j11 * out[SC + 5] + j12 * out[SC + 8];
-    let ca = js00 * j00 + js02 * j02 + cam[22];
+    let ra = js00 * j00 + js02 * j02;
     let cb = js01 * j11 + js02 * j12;
-    let cc = js11 * j11 + js12 * j12 + cam[22];
+    let rc = js11 * j11 + js12 * j12;
+    let ca = ra + cam[22];
+    let cc = rc + cam[22];
     out[COV] = ca;
     out[COV + 1] = cb;
     out[COV + 2] = cc;
+    out[RAW] = ra;
+    out[RAW + 1] = rc;
     let det = ca * cc - cb * cb;
+    // Mip-Splatting's 2D filter: the blurred splat keeps the unblurred one's integral.
+    let ratio = select(cam[23] > 0.5, (ra * rc - cb * cb) / det, 1.0f32);
+    out[RATIO] = ratio;
+    out[COMP] = clampf(ratio, MIN_RATIO, 1.0).sqrt();
     if status == 0u32 && !(finite(det) && det > 0.0) {
         status = 3u32;
     }
@@ -255,7 +269,7 @@ pub fn project_forward(
     let z = core[P + 2];
     let x = cam[12] * core[P] / z + cam[14] + offsets[2 * iu];
     let y = cam[13] * core[P + 1] / z + cam[15] + offsets[2 * iu + 1];
-    let o = opacities[iu];
+    let o = opacities[iu] * core[COMP];
     let level = 2.0 * (o / ALPHA_MIN).ln();
     if status == 0u32 && (!finite(level) || level <= 0.0) {
         status = 4u32;
@@ -987,10 +1001,28 @@ pub fn project_backward(
     let qg01 = qa * gb + qb * gc;
     let qg10 = qb * ga + qc * gb;
     let qg11 = qb * gb + qc * gc;
-    let gc00 = -(qg00 * qa + qg01 * qb);
-    let gc01 = -(qg00 * qb + qg01 * qc);
-    let gc10 = -(qg10 * qa + qg11 * qb);
-    let gc11 = -(qg10 * qb + qg11 * qc);
+    let mut gc00 = -(qg00 * qa + qg01 * qb);
+    let mut gc01 = -(qg00 * qb + qg01 * qc);
+    let mut gc10 = -(qg10 * qa + qg11 * qb);
+    let mut gc11 = -(qg10 * qb + qg11 * qc);
+    let mut g_opacity = acc[5];
+    if cam[23] > 0.5 {
+        // comp = sqrt(r), r = det(cov - blur) / det(cov), clamped: no gradient where clamped.
+        let ratio = f[RATIO];
+        let comp = f[COMP];
+        let inside = ratio == clampf(ratio, MIN_RATIO, 1.0);
+        let d_r = select(inside, acc[5] * opacities[gu] * 0.5 / comp, 0.0f32);
+        let b = f[COV + 1];
+        let det = f[COV] * f[COV + 2] - b * b;
+        let det0 = f[RAW] * f[RAW + 1] - b * b;
+        let idet2 = 1.0 / (det * det);
+        gc00 += d_r * (f[RAW + 1] * det - det0 * f[COV + 2]) * idet2;
+        gc11 += d_r * (f[RAW] * det - det0 * f[COV]) * idet2;
+        let off = -(d_r * b * (det - det0) * idet2);
+        gc01 += off;
+        gc10 += off;
+        g_opacity = acc[5] * comp;
+    }
     // J = [[j00, 0, j02], [0, j11, j12]].
     let mut jm = Array::<f32>::new(6usize);
     jm[0] = f[J00];
@@ -1115,7 +1147,7 @@ pub fn project_backward(
     for k in 0..4usize {
         g_quats[gu * 4 + k] = (dqn[k] - f[QN + k] * dot) / f[QNORM];
     }
-    g_opacities[gu] = acc[5];
+    g_opacities[gu] = g_opacity;
     g_offsets[gu * 2] = dxy0;
     g_offsets[gu * 2 + 1] = dxy1;
 }

@@ -32,7 +32,7 @@ use cubecl::prelude::*;
 use cubecl::server::Handle;
 
 use crate::backend::{SplatBackend, SplatKernels, SplatPrimitives, SplatPrimitivesMetadata};
-use crate::config::{AlphaCutoff, FRUSTUM_MARGIN, SplatConfig, TILE_SIZE};
+use crate::config::{AlphaCutoff, SplatConfig, TILE_SIZE};
 use kernels::{CAM, PROJ};
 use scan_sort::{Client, bits_for, elementwise_flat, exclusive_scan, radix_sort, zero};
 
@@ -175,24 +175,16 @@ impl Inputs {
 /// The camera as the kernels read it (see [`kernels::CAM`]).
 fn camera_buffer(client: &Client, config: &SplatConfig) -> Handle {
     let c = &config.camera;
-    let (w, h) = (f64::from(c.width), f64::from(c.height));
-    let m = FRUSTUM_MARGIN;
     let mut v = Vec::with_capacity(CAM as usize);
     for row in c.rotation {
         v.extend(row.map(|x| x as f32));
     }
     v.extend(c.translation.map(|x| x as f32));
     v.extend([c.fx, c.fy, c.cx, c.cy, c.near, c.far].map(|x| x as f32));
-    v.extend(
-        [
-            (-m * w - c.cx) / c.fx,
-            ((1.0 + m) * w - c.cx) / c.fx,
-            (-m * h - c.cy) / c.fy,
-            ((1.0 + m) * h - c.cy) / c.fy,
-        ]
-        .map(|x| x as f32),
-    );
+    let (lim_x, lim_y) = c.jacobian_limits();
+    v.extend(lim_x.into_iter().chain(lim_y).map(|x| x as f32));
     v.push(config.blur_px2 as f32);
+    v.push(if config.compensate_blur { 1.0 } else { 0.0 });
     debug_assert_eq!(v.len(), CAM as usize);
     client.create_from_slice(&f32_bytes(&v))
 }

@@ -5,10 +5,10 @@ use burn::tensor::{DType, Device};
 use gtsr_render_kernels::antialias::MIN_COMPENSATION;
 use gtsr_render_kernels::scenes::{
     HostScene, RandomSceneSpec, axis_camera, random_scene, stiff_cases,
-    weighted_loss_gradients_with,
+    weighted_loss_gradients_through, weighted_loss_gradients_with,
 };
 use gtsr_render_kernels::{
-    AlphaCutoff, BLUR_PX2, PIXEL_BOX_BLUR_PX2, SplatConfig, blur_compensation, render,
+    AlphaCutoff, BLUR_PX2, PIXEL_BOX_BLUR_PX2, SplatConfig, SplatInputs, blur_compensation, render,
 };
 
 use crate::common::{INPUT_NAMES, check_against_finite_differences, host, loss_weights};
@@ -135,6 +135,61 @@ fn compensated_backward_matches_finite_differences() {
         let what = format!("{n} Gaussians, compensated");
         check_against_finite_differences(&scene, &grads, |s| loss(s, &weights), &what);
     }
+}
+
+#[test]
+fn the_kernels_compensate_as_the_burn_expression_does() {
+    // The projection's own factor and its gradient against the opacities scaled by
+    // `blur_compensation` upstream (uncompensated kernels, Burn's autodiff through the factor).
+    let spec = RandomSceneSpec {
+        count: 300,
+        channels: 3,
+        size: (64, 48),
+        radius: 1.0,
+        scale_range: (0.001, 0.2),
+        opacity_range: (0.05, 0.95),
+        distance: 4.0,
+        fov_x: 0.8,
+    };
+    let mut thin = 0;
+    for (seed, blur) in [(31, BLUR_PX2), (32, PIXEL_BOX_BLUR_PX2), (33, 1.5)] {
+        let scene = random_scene(seed, &spec);
+        let weights = loss_weights(seed, 64 * 48 * 4);
+        let device = Device::ndarray();
+        let on = config(&scene, AlphaCutoff::Smooth, blur, true);
+        let off = SplatConfig {
+            compensate_blur: false,
+            ..on.clone()
+        };
+        let inp = scene.inputs(&device, DType::F64);
+        let f = host(blur_compensation(&inp.means, &inp.quats, &inp.scales, &on));
+        thin += f.iter().filter(|v| **v < 0.5).count();
+        let kernels =
+            weighted_loss_gradients_with(&device, &scene, DType::F64, &on, &weights).unwrap();
+        let expression =
+            weighted_loss_gradients_through(&device, &scene, DType::F64, &off, &weights, |i| {
+                let c = blur_compensation(&i.means, &i.quats, &i.scales, &on);
+                SplatInputs {
+                    opacities: i.opacities.clone() * c,
+                    ..i
+                }
+            })
+            .unwrap();
+        let close = |a: &[f64], b: &[f64], what: &str| {
+            let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-12);
+            for (k, (x, y)) in a.iter().zip(b).enumerate() {
+                assert!(
+                    (x - y).abs() <= 1e-9 * scale,
+                    "blur {blur}, {what}[{k}]: kernels {x}, expression {y}"
+                );
+            }
+        };
+        close(&kernels.output, &expression.output, "output");
+        for ((a, b), name) in kernels.grads.iter().zip(&expression.grads).zip(INPUT_NAMES) {
+            close(a, b, name);
+        }
+    }
+    assert!(thin > 30, "only {thin} splats thinner than the blur");
 }
 
 #[test]
