@@ -14,6 +14,7 @@
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
+use crate::antialias::MIN_COMPENSATION;
 use crate::config::TILE_SIZE;
 
 /// Floats per projected splat: x, y, conic a, b, c, opacity, depth, skip power, rect x0, y0,
@@ -38,8 +39,8 @@ const ALPHA_MIN: f32 = 1.0 / 255.0;
 const ALPHA_MAX: f32 = 0.99;
 const T_MIN: f32 = 1e-4;
 const QUAT_MIN_NORM2: f32 = 1e-8;
-/// `MIN_COMPENSATION^2` (`crate::antialias::MIN_COMPENSATION`): the clamp of the ratio.
-const MIN_RATIO: f32 = 1e-6;
+/// The least ratio of the blur's compensation, `MIN_COMPENSATION^2`.
+const MIN_RATIO: f32 = (MIN_COMPENSATION * MIN_COMPENSATION) as f32;
 
 // Layout of the intermediate values of the projection (`core`).
 const QN: usize = 0; // 4
