@@ -208,6 +208,7 @@ impl Model {
         }
     }
 
+    /// One pass: the prepared set `p` with `opacities` and `features`, in `camera`.
     fn splat(
         &self,
         p: &Prepared,
@@ -294,10 +295,9 @@ impl Model {
         let normals_w =
             normals.then(|| facing_normals(&quat_to_matrix(&quats), &log_scales, &means, centre));
         let n = set.len();
-        let scales = log_scales.exp();
         Prepared {
             opacities: self.opacities(set),
-            scales,
+            scales: log_scales.exp(),
             means,
             quats,
             colours,

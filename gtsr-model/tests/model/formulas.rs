@@ -1,11 +1,11 @@
 //! The model's formulas against direct per-pixel / per-Gaussian evaluations in f64.
 
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::{Bool, Device, Tensor, TensorData};
 use gtsr_model::config::Components;
 use gtsr_model::gaussians::{HostSet, ParamKind, SetKind, host_vec, layout, logit};
 use gtsr_model::geometry::pixel_rays;
 use gtsr_model::losses;
-use gtsr_model::model::{Model, RenderOptions};
+use gtsr_model::model::{GeometryMaps, Model, RenderOptions};
 use gtsr_model::pbr::{self, GBuffer, ShadingParams};
 use gtsr_model::sh;
 use gtsr_render_kernels::cpu::HostGaussians;
@@ -1004,6 +1004,17 @@ fn the_photometric_band_leaves_out_the_pixels_it_is_told_to() {
     assert!((part - want).abs() < 1e-6, "{part} against {want}");
 }
 
+/// On an autodiff device: three facing layers of opacity 0.5 at z-depths 3.8, 4.0, 4.2
+/// ([`facing_stack`]), their depth render (the blend lies at 3.914) and the pixels it covers.
+fn blended_stack() -> (Device, Model, Camera, GeometryMaps, Tensor<2, Bool>) {
+    let device = Device::ndarray().autodiff();
+    let (model, cam) = facing_stack(&[-0.2, 0.0, 0.2], &device);
+    let rays = pixel_rays(&cam, &device);
+    let g = model.render_depth(&cam, &rays).unwrap();
+    let valid = g.coverage.clone().greater_equal_elem(0.5);
+    (device, model, cam, g, valid)
+}
+
 /// The gradient of the surface set's `kind` parameter on the host.
 fn surface_grad(model: &Model, kind: ParamKind, grads: &burn::tensor::Gradients) -> Vec<f32> {
     host_vec(model.surface.req(kind).grad(grads).expect("a gradient"))
@@ -1053,12 +1064,7 @@ fn the_front_depth_term_makes_the_front_layer_opaque_and_moves_nothing() {
 
 #[test]
 fn the_hull_depth_term_pulls_the_blend_onto_a_near_bound_and_ignores_a_far_one() {
-    let device = Device::ndarray().autodiff();
-    // Three facing layers of opacity 0.5 at z-depths 3.8, 4.0, 4.2: the blend lies at 3.914.
-    let (model, cam) = facing_stack(&[-0.2, 0.0, 0.2], &device);
-    let rays = pixel_rays(&cam, &device);
-    let g = model.render_depth(&cam, &rays).unwrap();
-    let valid = g.coverage.clone().greater_equal_elem(0.5);
+    let (device, model, cam, g, valid) = blended_stack();
     let (w, h) = (cam.width as usize, cam.height as usize);
     // The bound at the front layer on the left half (0.99 footprints in front of the blend),
     // 10 footprints in front on the right half (a concavity: left out), none on the top row.
@@ -1091,11 +1097,7 @@ fn the_hull_depth_term_pulls_the_blend_onto_a_near_bound_and_ignores_a_far_one()
 
 #[test]
 fn the_hull_depth_term_pulls_a_surface_that_spills_past_an_occluding_edge_back() {
-    let device = Device::ndarray().autodiff();
-    let (model, cam) = facing_stack(&[-0.2, 0.0, 0.2], &device);
-    let rays = pixel_rays(&cam, &device);
-    let g = model.render_depth(&cam, &rays).unwrap();
-    let valid = g.coverage.clone().greater_equal_elem(0.5);
+    let (device, model, cam, g, valid) = blended_stack();
     let (w, h) = (cam.width as usize, cam.height as usize);
     // The bound places every pixel far behind the blend (at 5), beyond the band; the left half
     // lies just behind an occluding edge whose nearer side the bound puts at 3.9, where the
