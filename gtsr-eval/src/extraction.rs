@@ -230,6 +230,12 @@ pub struct MeshConfig {
     /// PGSR; the test-view depth metrics then measure this depth. In (0, 1).
     #[arg(skip)]
     pub depth_crossing: Option<f64>,
+    /// Render the depth that is fused or carved (and that the test-view depth metrics measure)
+    /// with this screen-space blur, in pixels^2, instead of the training's: the blur stands for
+    /// the pixel filter of the images, and the geometry read without it lies where the splats
+    /// themselves are. `None`: the training's blur. Finite, `>= 0`.
+    #[arg(skip)]
+    pub readout_blur_px2: Option<f64>,
     /// TSDF on a masked scene: keep the masks' visual hull in the volume, so the surface never
     /// leaves a silhouette ([`crate::TsdfVolume::with_silhouette_carving`]). Off: pixels
     /// outside the masks cast no votes (depth alone, as PGSR and 2DGS fuse).
@@ -288,6 +294,7 @@ impl Default for MeshConfig {
             truncation_footprints: None,
             mesh_resolution: None,
             depth_crossing: None,
+            readout_blur_px2: None,
             silhouette_carving: true,
             fuse_depth: true,
             hull_inside_distance: false,
@@ -408,6 +415,13 @@ impl MeshConfig {
             && !(t > 0.0 && t < 1.0)
         {
             return bad(format!("mesh.depth_crossing must be in (0, 1), got {t}"));
+        }
+        if let Some(b) = self.readout_blur_px2
+            && !(b.is_finite() && b >= 0.0)
+        {
+            return bad(format!(
+                "mesh.readout_blur_px2 must be a finite number of pixels^2 >= 0, got {b}"
+            ));
         }
         if let Some(f) = self.snap_to_hull {
             if !(f.is_finite() && f >= 0.0) {
@@ -1133,6 +1147,20 @@ mod tests {
                     ..Default::default()
                 },
                 "depth_crossing",
+            ),
+            (
+                MeshConfig {
+                    readout_blur_px2: Some(f64::NAN),
+                    ..Default::default()
+                },
+                "readout_blur_px2",
+            ),
+            (
+                MeshConfig {
+                    readout_blur_px2: Some(-0.1),
+                    ..Default::default()
+                },
+                "readout_blur_px2",
             ),
             (
                 MeshConfig {

@@ -138,13 +138,24 @@ fn training_cameras(scene: &Scene) -> Vec<gtsr_data::Camera> {
 }
 
 /// The surface geometry whose depth is fused and measured: the blended maps, or with
-/// the mesh setting `depth_crossing` those of the crossing splat.
+/// the mesh setting `depth_crossing` those of the crossing splat; rendered with the mesh
+/// setting `readout_blur_px2` where it is set.
 fn fusion_geometry(
     model: &Model,
     camera: &gtsr_render_kernels::Camera,
     rays: &burn::tensor::Tensor<3>,
     settings: &MeshSettings,
 ) -> Result<gtsr_model::model::GeometryMaps> {
+    let reblurred;
+    let model = match settings.config.readout_blur_px2 {
+        Some(b) => {
+            let mut m = model.detached();
+            m.blur_px2 = b;
+            reblurred = m;
+            &reblurred
+        }
+        None => model,
+    };
     Ok(match settings.config.depth_crossing {
         Some(t) => model.render_depth_crossing(camera, rays, t)?,
         None => model.render_depth(camera, rays)?,
