@@ -269,6 +269,16 @@ impl Model {
         }
     }
 
+    /// [`Model::detached`] with every render's screen-space blur set to `blur_px2` (pixels^2)
+    /// instead of the training's: geometry read where the splats themselves are, without the
+    /// blur that stands for the images' pixel filter (the mesh setting `readout_blur_px2`).
+    pub fn detached_with_blur(&self, blur_px2: f64) -> Model {
+        Model {
+            blur_px2,
+            ..self.detached()
+        }
+    }
+
     /// Light intensity (with PBR).
     pub fn light(&self) -> Option<Tensor<2>> {
         self.log_light.as_ref().map(|l| l.clone().exp())

@@ -149,9 +149,7 @@ fn fusion_geometry(
     let reblurred;
     let model = match settings.config.readout_blur_px2 {
         Some(b) => {
-            let mut m = model.detached();
-            m.blur_px2 = b;
-            reblurred = m;
+            reblurred = model.detached_with_blur(b);
             &reblurred
         }
         None => model,

@@ -325,6 +325,39 @@ fn unbiased_depth_is_the_ray_plane_intersection() {
     assert!(checked > 300, "only {checked} covered pixels");
 }
 
+/// A splat thinner than a pixel covers less of its image without the blur, and a copy with
+/// the training's own blur renders exactly as the model does.
+#[test]
+fn the_readout_blur_changes_what_a_thin_splat_covers() {
+    let device = Device::ndarray();
+    let cam = camera();
+    let rays = pixel_rays(&cam, &device);
+    let model = surface_only_model(
+        &[Splat {
+            mean: [0.0, 0.0, 0.0],
+            quat: [1.0, 0.0, 0.0, 0.0],
+            scales: [0.6, 0.004, 1e-4],
+            opacity: 0.9,
+        }],
+        gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
+        &device,
+    );
+    let coverage = |m: &Model| host_vec(m.render_depth(&cam, &rays).unwrap().coverage);
+    let trained = coverage(&model);
+    let same = coverage(&model.detached_with_blur(model.blur_px2));
+    assert_eq!(trained, same);
+    let sharp = coverage(&model.detached_with_blur(0.0));
+    let (sum_trained, sum_sharp): (f32, f32) = (trained.iter().sum(), sharp.iter().sum());
+    assert!(
+        sum_trained > 1.0,
+        "the thin splat covers {sum_trained} pixels"
+    );
+    assert!(
+        sum_sharp < 0.9 * sum_trained,
+        "coverage without the blur {sum_sharp}, with it {sum_trained}"
+    );
+}
+
 /// The crossing depth takes one layer of a stack where the blended depth averages them.
 #[test]
 fn crossing_depth_is_one_layer_of_a_stack() {
