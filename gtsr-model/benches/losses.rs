@@ -1,7 +1,8 @@
 //! `cargo bench -p gtsr-model --bench losses`: the photometric loss (L1 + SSIM) of one render
 //! against its target on the NdArray autodiff backend (f32), forward alone and forward plus
 //! backward, at the training resolutions (64, 128, 256 px; 512 px with
-//! `GTSR_BENCH_LARGE=1`), with glibc keeping freed memory as `gtsr-train` does. Prints a markdown table of median times over the repetitions.
+//! `GTSR_BENCH_LARGE=1`), with glibc keeping freed memory as `gtsr-train` does. Prints a
+//! markdown table of median times over the repetitions.
 
 // Device::ndarray is deprecated upstream; NdArray stays the CPU and CI backend.
 #![allow(deprecated)]

@@ -138,26 +138,27 @@ fn training_cameras(scene: &Scene) -> Vec<gtsr_data::Camera> {
 }
 
 /// The surface geometry whose depth is fused and measured: the blended maps, or with
-/// the mesh setting `depth_crossing` those of the crossing splat; rendered with the mesh
-/// setting `readout_blur_px2` where it is set.
+/// the mesh setting `depth_crossing` those of the crossing splat. `model` is the readout's
+/// ([`readout_model`]).
 fn fusion_geometry(
     model: &Model,
     camera: &gtsr_render_kernels::Camera,
     rays: &burn::tensor::Tensor<3>,
     settings: &MeshSettings,
 ) -> Result<gtsr_model::model::GeometryMaps> {
-    let reblurred;
-    let model = match settings.config.readout_blur_px2 {
-        Some(b) => {
-            reblurred = model.detached_with_blur(b);
-            &reblurred
-        }
-        None => model,
-    };
     Ok(match settings.config.depth_crossing {
         Some(t) => model.render_depth_crossing(camera, rays, t)?,
         None => model.render_depth(camera, rays)?,
     })
+}
+
+/// The model whose depth is fused and measured: `model` itself, or with the mesh setting
+/// `readout_blur_px2` a copy rendering with that blur.
+fn readout_model(model: &Model, settings: &MeshSettings) -> Option<Model> {
+    settings
+        .config
+        .readout_blur_px2
+        .map(|b| model.detached_with_blur(b))
 }
 
 /// The mesh: every fusion view's depth rendered and prepared ([`fusion_depth`]), then
@@ -169,7 +170,8 @@ pub fn extract_mesh(
     settings: &MeshSettings,
     coarse: bool,
 ) -> Result<TriMesh> {
-    let model = trainer.model().detached();
+    let model =
+        readout_model(trainer.model(), settings).unwrap_or_else(|| trainer.model().detached());
     let host_views: Vec<&gtsr_data::View> = if settings.fusion_views.is_empty() {
         scene.train.iter().collect()
     } else {
@@ -358,6 +360,8 @@ fn test_view_geometry(
     let caster = MeshRaycaster::new(gt, "ground-truth mesh")?;
     let mut cmp = DepthComparison::new();
     let mut cmp_area = area.then(DepthComparison::new);
+    let reblurred = readout_model(model, settings);
+    let model = reblurred.as_ref().unwrap_or(model);
     for (v, data) in tests.iter().zip(&scene.test) {
         let truth = caster.render(&data.camera);
         let g = fusion_geometry(model, &v.camera, &v.rays, settings)?;
