@@ -103,6 +103,28 @@ pub const DEFAULT_SHADING_DEPTH_THRESHOLD: f32 = 0.25;
 /// observe.
 const DEPTH_MIN_VIEWS: u32 = 3;
 
+/// Where the depth that is fused and measured takes its blur in each splat's own plane rather
+/// than on the screen ([`MeshConfig::readout_blur_in_plane`]). In the plane, a splat facing
+/// the camera covers what the screen's blur makes it cover, and one seen edge-on at an
+/// occluding outline does not spill past the outline; a tilted splat covers less.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PlaneReadout {
+    /// On the screen everywhere (the training's render).
+    Off,
+    /// In the plane everywhere.
+    Everywhere,
+    /// On the screen, except at the pixels where the plane's depth lies more than
+    /// [`OUTLINE_GAP_FOOTPRINTS`] behind the screen's: there the nearer surface only spills
+    /// past its outline, and the plane's layer is the one the pixel sees.
+    #[default]
+    Outlines,
+}
+
+/// [`PlaneReadout::Outlines`]: how far behind the screen's depth, in pixel footprints, the
+/// plane's must lie for a pixel to count as spilled over.
+pub const OUTLINE_GAP_FOOTPRINTS: f64 = 3.0;
+
 /// Every mesh extraction setting. Scenes without masks always use [`Fusion::Tsdf`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
 #[serde(default, deny_unknown_fields)]
@@ -236,6 +258,10 @@ pub struct MeshConfig {
     /// themselves are. `None`: the training's blur. Finite, `>= 0`.
     #[arg(skip)]
     pub readout_blur_px2: Option<f64>,
+    /// Where the readout's blur (the training's, or [`MeshConfig::readout_blur_px2`]) acts in
+    /// each splat's own plane instead of on the screen ([`PlaneReadout`]).
+    #[arg(skip)]
+    pub readout_blur_in_plane: PlaneReadout,
     /// TSDF on a masked scene: keep the masks' visual hull in the volume, so the surface never
     /// leaves a silhouette ([`crate::TsdfVolume::with_silhouette_carving`]). Off: pixels
     /// outside the masks cast no votes (depth alone, as PGSR and 2DGS fuse).
@@ -295,6 +321,7 @@ impl Default for MeshConfig {
             mesh_resolution: None,
             depth_crossing: None,
             readout_blur_px2: None,
+            readout_blur_in_plane: PlaneReadout::default(),
             silhouette_carving: true,
             fuse_depth: true,
             hull_inside_distance: false,

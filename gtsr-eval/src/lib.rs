@@ -33,7 +33,7 @@ pub use depth::{DEPTH_QUANTILES, DepthComparison, DepthMetrics, MeshDepth, MeshR
 pub use error::{EvalError, Result};
 pub use extraction::{
     DepthGeometry, EdgeHull, Fusion, FusionInputs, FusionView, MasksAlone, MeshConfig,
-    extract_mesh, prepare_depth,
+    OUTLINE_GAP_FOOTPRINTS, PlaneReadout, extract_mesh, prepare_depth,
 };
 pub use hull::{
     EdgeProfile, coverage_to_distance, coverage_to_distance_with, edge_width, hull_slack,

@@ -251,6 +251,7 @@ pub fn load(path: &Path, views: Vec<ViewTensors>, device: &Device) -> Result<Tra
         blur_px2: meta.config.blur_px2,
         compensate_blur: meta.config.compensate_blur,
         surface_opacity_floor: meta.config.surface_opacity_floor,
+        plane_blur_px2: 0.0,
     };
     trainer.step = meta.step;
     trainer.counters = meta.counters;

@@ -47,6 +47,13 @@ pub struct Model {
     /// The least opacity of a surface Gaussian (`[0, 1)`; 0: the plain logistic), as
     /// [`crate::config::TrainConfig::surface_opacity_floor`].
     pub surface_opacity_floor: f64,
+    /// Blur in each splat's own plane, in pixels^2 at the splat's depth: every render adds
+    /// `plane_blur_px2 (z / f)^2` to the variance along a Gaussian's two largest axes (`z` its
+    /// depth in the camera, `f` the focal length). A splat facing the camera then covers what the
+    /// screen-space blur [`Model::blur_px2`] would make it cover; one seen edge-on (at an
+    /// occluding outline) does not grow across the outline. 0 in training; set for readouts by
+    /// [`Model::detached_with_plane_blur`].
+    pub plane_blur_px2: f64,
 }
 
 /// What a render should produce.
@@ -143,6 +150,31 @@ fn splat_inputs(p: &Prepared, opacities: Tensor<1>, features: Tensor<2>) -> Spla
         opacities,
         features,
         xy_offsets: p.offsets.clone(),
+    }
+}
+
+impl GeometryMaps {
+    /// These maps, with `farther`'s (the same camera's, read another way) at the pixels where
+    /// `farther` is a surface (coverage at least 0.5) whose depth lies more than `gap`
+    /// footprints (`depth / focal`) behind this depth. With `farther` read with the blur in
+    /// each splat's plane ([`Model::detached_with_plane_blur`]) these are the pixels over which
+    /// a nearer surface only spills past its outline. The optional maps (`base`, `roughness`,
+    /// `spread`) are this one's.
+    pub fn with_farther(self, farther: GeometryMaps, focal: f64, gap: f64) -> GeometryMaps {
+        let [h, w] = self.depth.dims();
+        let near = self.depth.clone().clamp_min(1e-12);
+        let take = ((farther.depth.clone() - self.depth.clone()) * focal / near)
+            .greater_elem(gap)
+            .bool_and(farther.coverage.clone().greater_equal_elem(0.5));
+        let take3 = take.clone().reshape([h, w, 1]).expand([h, w, 3]);
+        GeometryMaps {
+            normal: self.normal.mask_where(take3, farther.normal),
+            plane: self.plane.mask_where(take.clone(), farther.plane),
+            coverage: self.coverage.mask_where(take.clone(), farther.coverage),
+            depth: self.depth.mask_where(take, farther.depth),
+            tile_splats: self.tile_splats + farther.tile_splats,
+            ..self
+        }
     }
 }
 
@@ -266,6 +298,20 @@ impl Model {
             blur_px2: self.blur_px2,
             compensate_blur: self.compensate_blur,
             surface_opacity_floor: self.surface_opacity_floor,
+            plane_blur_px2: self.plane_blur_px2,
+        }
+    }
+
+    /// [`Model::detached`] with every render's blur moved from the screen into each splat's
+    /// plane ([`Model::plane_blur_px2`]): the screen-space blur is 0 and the plane's is
+    /// `blur_px2`. Geometry read so keeps the coverage the blur gives a splat that faces the
+    /// camera, without the spill of a splat seen edge-on past an occluding outline (the mesh
+    /// setting `readout_blur_in_plane`).
+    pub fn detached_with_plane_blur(&self, blur_px2: f64) -> Model {
+        Model {
+            blur_px2: 0.0,
+            plane_blur_px2: blur_px2,
+            ..self.detached()
         }
     }
 
@@ -307,7 +353,7 @@ impl Model {
         let n = set.len();
         Prepared {
             opacities: self.opacities(set),
-            scales: log_scales.exp(),
+            scales: self.plane_blurred(log_scales.clone().exp(), &log_scales, &means, camera),
             means,
             quats,
             colours,
@@ -323,6 +369,28 @@ impl Model {
                 .require_grad()
             }),
         }
+    }
+
+    /// `scales` `[N, 3]` with [`Model::plane_blur_px2`] added along each Gaussian's two largest
+    /// axes (the smallest of `log_scales` is its normal); `scales` itself when it is 0.
+    fn plane_blurred(
+        &self,
+        scales: Tensor<2>,
+        log_scales: &Tensor<2>,
+        means: &Tensor<2>,
+        camera: &Camera,
+    ) -> Tensor<2> {
+        if self.plane_blur_px2 <= 0.0 {
+            return scales;
+        }
+        let n = means.dims()[0];
+        let z = layout::cols(&to_camera(means, camera), 2..3).clamp_min(camera.near);
+        let focal = 0.5 * (camera.fx + camera.fy);
+        let added = (z / focal).powi_scalar(2) * self.plane_blur_px2;
+        let normal_axis = log_scales.clone().detach().argmin(1).reshape([n]);
+        let onehot: Tensor<2> = normal_axis.one_hot::<2>(3).float().cast(scales.dtype());
+        let in_plane = onehot.neg() + 1.0;
+        (scales.powi_scalar(2) + in_plane * added).sqrt()
     }
 
     /// Geometry (and material) features `[N, 4 or 8]` of the surface set for `camera`; with

@@ -429,6 +429,7 @@ impl Trainer {
             blur_px2: config.blur_px2,
             compensate_blur: config.compensate_blur,
             surface_opacity_floor: config.surface_opacity_floor,
+            plane_blur_px2: 0.0,
         };
         let cams: Vec<_> = views.iter().map(|v| v.camera.clone()).collect();
         let neighbours = neighbours(&cams, config.neighbour_max_angle_deg);

@@ -8,14 +8,14 @@ use glam::Vec3;
 use gtsr_data::Scene;
 use gtsr_data::ply::{TriMesh, write_ply};
 use gtsr_eval::{
-    DepthComparison, DepthMetrics, ImageRef, MeshMetrics, MeshRaycaster, Timeline, psnr,
-    score_against_ground_truth, ssim,
+    DepthComparison, DepthMetrics, ImageRef, MeshMetrics, MeshRaycaster, OUTLINE_GAP_FOOTPRINTS,
+    PlaneReadout, Timeline, psnr, score_against_ground_truth, ssim,
 };
 use gtsr_model::checkpoint::write_atomic;
 use gtsr_model::export::write_splat_ply;
 use gtsr_model::gaussians::host_vec;
 use gtsr_model::geometry::pixel_rays;
-use gtsr_model::model::Model;
+use gtsr_model::model::{GeometryMaps, Model};
 use gtsr_model::trainer::Trainer;
 use gtsr_model::views::ViewTensors;
 use gtsr_model::views::kernel_camera;
@@ -137,28 +137,66 @@ fn training_cameras(scene: &Scene) -> Vec<gtsr_data::Camera> {
     scene.train.iter().map(|v| v.camera).collect()
 }
 
-/// The surface geometry whose depth is fused and measured: the blended maps, or with
-/// the mesh setting `depth_crossing` those of the crossing splat. `model` is the readout's
-/// ([`readout_model`]).
+/// The model(s) whose depth is fused and measured ([`readout`]).
+struct Readout {
+    /// The training's render, or with the mesh setting `readout_blur_px2` a copy with that
+    /// screen-space blur, or with `readout_blur_in_plane` everywhere a copy with the blur in
+    /// each splat's plane.
+    model: Model,
+    /// With `readout_blur_in_plane` at the outlines: the copy with the blur in the plane.
+    outlines: Option<Model>,
+}
+
+/// The readout of `model` under the mesh settings.
+fn readout(model: &Model, settings: &MeshSettings) -> Readout {
+    let c = &settings.config;
+    let screen = || {
+        c.readout_blur_px2
+            .map(|b| model.detached_with_blur(b))
+            .unwrap_or_else(|| model.detached())
+    };
+    let plane = || model.detached_with_plane_blur(c.readout_blur_px2.unwrap_or(model.blur_px2));
+    match c.readout_blur_in_plane {
+        PlaneReadout::Off => Readout {
+            model: screen(),
+            outlines: None,
+        },
+        PlaneReadout::Everywhere => Readout {
+            model: plane(),
+            outlines: None,
+        },
+        PlaneReadout::Outlines => Readout {
+            model: screen(),
+            outlines: Some(plane()),
+        },
+    }
+}
+
+/// The surface geometry whose depth is fused and measured: the blended maps, or with the mesh
+/// setting `depth_crossing` those of the crossing splat; with `readout_blur_in_plane` at the
+/// outlines, the plane's maps where the screen's nearer surface only spills over
+/// ([`GeometryMaps::with_farther`]).
 fn fusion_geometry(
-    model: &Model,
+    readout: &Readout,
     camera: &gtsr_render_kernels::Camera,
     rays: &burn::tensor::Tensor<3>,
     settings: &MeshSettings,
-) -> Result<gtsr_model::model::GeometryMaps> {
-    Ok(match settings.config.depth_crossing {
-        Some(t) => model.render_depth_crossing(camera, rays, t)?,
-        None => model.render_depth(camera, rays)?,
+) -> Result<GeometryMaps> {
+    let read = |model: &Model| -> Result<GeometryMaps> {
+        Ok(match settings.config.depth_crossing {
+            Some(t) => model.render_depth_crossing(camera, rays, t)?,
+            None => model.render_depth(camera, rays)?,
+        })
+    };
+    let maps = read(&readout.model)?;
+    Ok(match &readout.outlines {
+        Some(plane) => maps.with_farther(
+            read(plane)?,
+            0.5 * (camera.fx + camera.fy),
+            OUTLINE_GAP_FOOTPRINTS,
+        ),
+        None => maps,
     })
-}
-
-/// The model whose depth is fused and measured: `model` itself, or with the mesh setting
-/// `readout_blur_px2` a copy rendering with that blur.
-fn readout_model(model: &Model, settings: &MeshSettings) -> Option<Model> {
-    settings
-        .config
-        .readout_blur_px2
-        .map(|b| model.detached_with_blur(b))
 }
 
 /// The mesh: every fusion view's depth rendered and prepared ([`fusion_depth`]), then
@@ -170,8 +208,7 @@ pub fn extract_mesh(
     settings: &MeshSettings,
     coarse: bool,
 ) -> Result<TriMesh> {
-    let model =
-        readout_model(trainer.model(), settings).unwrap_or_else(|| trainer.model().detached());
+    let model = readout(trainer.model(), settings);
     let host_views: Vec<&gtsr_data::View> = if settings.fusion_views.is_empty() {
         scene.train.iter().collect()
     } else {
@@ -227,7 +264,7 @@ pub fn extract_mesh(
 /// when [`MeshSettings::fusion_views`] is empty.
 fn fusion_depth(
     trainer: &Trainer,
-    model: &Model,
+    model: &Readout,
     k: usize,
     data: &gtsr_data::View,
     settings: &MeshSettings,
@@ -360,11 +397,10 @@ fn test_view_geometry(
     let caster = MeshRaycaster::new(gt, "ground-truth mesh")?;
     let mut cmp = DepthComparison::new();
     let mut cmp_area = area.then(DepthComparison::new);
-    let reblurred = readout_model(model, settings);
-    let model = reblurred.as_ref().unwrap_or(model);
+    let readout = readout(model, settings);
     for (v, data) in tests.iter().zip(&scene.test) {
         let truth = caster.render(&data.camera);
-        let g = fusion_geometry(model, &v.camera, &v.rays, settings)?;
+        let g = fusion_geometry(&readout, &v.camera, &v.rays, settings)?;
         let depth = host_vec(g.depth);
         let normal = host_vec(g.normal);
         let cov = host_vec(g.coverage);

@@ -139,6 +139,7 @@ fn full_model(surf: &HostSet, int: &HostSet, device: &Device) -> Model {
         blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,
         compensate_blur: false,
         surface_opacity_floor: 0.0,
+        plane_blur_px2: 0.0,
     }
 }
 
@@ -358,6 +359,91 @@ fn the_readout_blur_changes_what_a_thin_splat_covers() {
     );
 }
 
+/// The blur moved into each splat's plane covers what the screen-space blur covers for a
+/// splat that faces the camera, and does not widen a splat seen edge-on.
+#[test]
+fn the_plane_blur_keeps_a_facing_splat_and_leaves_an_edge_on_one_thin() {
+    let device = Device::ndarray();
+    let cam = camera();
+    let rays = pixel_rays(&cam, &device);
+    let coverage = |splat: Splat, plane: bool| -> f32 {
+        let model = surface_only_model(&[splat], gtsr_render_kernels::BLUR_PX2, &device);
+        let model = if plane {
+            model.detached_with_plane_blur(model.blur_px2)
+        } else {
+            model
+        };
+        host_vec(model.render_depth(&cam, &rays).unwrap().coverage)
+            .iter()
+            .sum()
+    };
+    // Normal along the view axis, a third of a pixel wide (a footprint is about 0.073 here).
+    let facing = Splat {
+        mean: [0.0, 0.0, 0.0],
+        quat: [1.0, 0.0, 0.0, 0.0],
+        scales: [0.025, 0.02, 1e-4],
+        opacity: 0.9,
+    };
+    let (screen, plane) = (coverage(facing, false), coverage(facing, true));
+    assert!(screen > 0.5, "the facing splat covers {screen} pixels");
+    assert!(
+        (plane / screen - 1.0).abs() < 0.1,
+        "facing splat: {plane} pixels with the plane's blur, {screen} with the screen's"
+    );
+    // Normal along y: the camera looks along the splat's plane, which projects to a line.
+    let edge_on = Splat {
+        mean: [0.0, 0.0, 0.0],
+        quat: [1.0, 0.0, 0.0, 0.0],
+        scales: [0.6, 1e-4, 0.05],
+        opacity: 0.9,
+    };
+    let (screen, plane) = (coverage(edge_on, false), coverage(edge_on, true));
+    assert!(screen > 2.0, "the edge-on splat covers {screen} pixels");
+    assert!(
+        plane < 0.5 * screen,
+        "edge-on splat: {plane} pixels with the plane's blur, {screen} with the screen's"
+    );
+}
+
+/// `with_farther` takes the other maps only where they are a surface lying more than the gap
+/// behind, and keeps these maps everywhere else.
+#[test]
+fn with_farther_takes_only_the_surfaces_beyond_the_gap() {
+    let device = Device::ndarray();
+    let maps = |depth: [f32; 4], coverage: [f32; 4], normal_z: f32| {
+        let t2 = |v: [f32; 4]| Tensor::<2>::from_data(TensorData::new(v.to_vec(), [2, 2]), &device);
+        GeometryMaps {
+            normal: Tensor::<3>::from_data(
+                TensorData::new(
+                    (0..4)
+                        .flat_map(|_| [0.0, 0.0, normal_z])
+                        .collect::<Vec<f32>>(),
+                    [2, 2, 3],
+                ),
+                &device,
+            ),
+            plane: t2(depth.map(|d| -d)),
+            coverage: t2(coverage),
+            depth: t2(depth),
+            base: None,
+            roughness: None,
+            spread: None,
+            tile_splats: 1,
+        }
+    };
+    // Focal 100 at depth 2: a footprint is 0.02, three of them 0.06.
+    let near = maps([2.0; 4], [1.0; 4], -1.0);
+    let farther = maps([2.05, 2.5, 2.5, 1.0], [1.0, 1.0, 0.3, 1.0], 1.0);
+    let merged = near.with_farther(farther, 100.0, 3.0);
+    // Pixel 0: 2.5 footprints behind, kept; 1: taken; 2: not a surface there; 3: in front.
+    assert_eq!(host_vec(merged.depth), vec![2.0, 2.5, 2.0, 2.0]);
+    assert_eq!(host_vec(merged.plane), vec![-2.0, -2.5, -2.0, -2.0]);
+    assert_eq!(host_vec(merged.coverage), vec![1.0; 4]);
+    let nz: Vec<f32> = host_vec(merged.normal).chunks(3).map(|n| n[2]).collect();
+    assert_eq!(nz, vec![-1.0, 1.0, -1.0, -1.0]);
+    assert_eq!(merged.tile_splats, 2);
+}
+
 /// The crossing depth takes one layer of a stack where the blended depth averages them.
 #[test]
 fn crossing_depth_is_one_layer_of_a_stack() {
@@ -438,6 +524,7 @@ fn facing_stack(zs: &[f32], device: &Device) -> (Model, Camera) {
 }
 
 /// One surface Gaussian of [`surface_only_model`].
+#[derive(Clone, Copy)]
 struct Splat {
     mean: [f32; 3],
     quat: [f32; 4],
@@ -478,6 +565,7 @@ fn surface_only_model(splats: &[Splat], blur_px2: f64, device: &Device) -> Model
         blur_px2,
         compensate_blur: false,
         surface_opacity_floor: 0.0,
+        plane_blur_px2: 0.0,
     }
 }
 
