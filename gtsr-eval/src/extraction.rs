@@ -255,7 +255,8 @@ pub struct MeshConfig {
     /// Render the depth that is fused or carved (and that the test-view depth metrics measure)
     /// with this screen-space blur, in pixels^2, instead of the training's: the blur stands for
     /// the pixel filter of the images, and the geometry read without it lies where the splats
-    /// themselves are. `None`: the training's blur. Finite, `>= 0`.
+    /// themselves are. Also the blur of the plane's render
+    /// ([`MeshConfig::readout_blur_in_plane`]). `None`: the training's blur. Finite, `>= 0`.
     #[arg(skip)]
     pub readout_blur_px2: Option<f64>,
     /// Where the readout's blur (the training's, or [`MeshConfig::readout_blur_px2`]) acts in
