@@ -208,7 +208,7 @@ pub fn extract_mesh(
     settings: &MeshSettings,
     coarse: bool,
 ) -> Result<TriMesh> {
-    let model = readout(trainer.model(), settings);
+    let readout = readout(trainer.model(), settings);
     let host_views: Vec<&gtsr_data::View> = if settings.fusion_views.is_empty() {
         scene.train.iter().collect()
     } else {
@@ -220,7 +220,7 @@ pub fn extract_mesh(
         .enumerate()
         .map(|(k, data)| {
             if settings.config.fuse_depth {
-                fusion_depth(trainer, &model, k, data, settings)
+                fusion_depth(trainer, &readout, k, data, settings)
             } else {
                 let mask = data
                     .mask
@@ -264,7 +264,7 @@ pub fn extract_mesh(
 /// when [`MeshSettings::fusion_views`] is empty.
 fn fusion_depth(
     trainer: &Trainer,
-    model: &Readout,
+    readout: &Readout,
     k: usize,
     data: &gtsr_data::View,
     settings: &MeshSettings,
@@ -274,14 +274,14 @@ fn fusion_depth(
     let (g, rays) = if settings.fusion_views.is_empty() && same_size {
         let v = trained;
         (
-            fusion_geometry(model, &v.camera, &v.rays, settings)?,
+            fusion_geometry(readout, &v.camera, &v.rays, settings)?,
             v.rays.clone(),
         )
     } else {
         let device = trainer.views()[0].rays.device();
         let camera = kernel_camera(&data.camera, &data.name)?;
         let rays = pixel_rays(&camera, &device);
-        (fusion_geometry(model, &camera, &rays, settings)?, rays)
+        (fusion_geometry(readout, &camera, &rays, settings)?, rays)
     };
     let normal = host_vec(g.normal);
     let rays = host_vec(rays);
