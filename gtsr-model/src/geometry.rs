@@ -109,6 +109,15 @@ pub fn normalize_rows(v: Tensor<2>) -> Tensor<2> {
     v / len
 }
 
+/// `[N, 3]` one-hot rows marking each Gaussian's normal axis, that of its smallest scale
+/// (decided on the detached `log_scales`; in their dtype).
+pub fn normal_axis(log_scales: &Tensor<2>) -> Tensor<2> {
+    let n = log_scales.dims()[0];
+    let axis = log_scales.clone().detach().argmin(1).reshape([n]);
+    let onehot: Tensor<2> = axis.one_hot::<2>(3).float();
+    onehot.cast(log_scales.dtype())
+}
+
 /// `[N, 3]` world-space normals: the rotation column of the smallest scale, flipped to face the
 /// camera centre. The axis choice and the flip are piecewise constant (no gradient), the
 /// rotation is differentiated.
@@ -120,9 +129,7 @@ pub fn facing_normals(
 ) -> Tensor<2> {
     let n = means.dims()[0];
     let device = means.device();
-    let axis = log_scales.clone().detach().argmin(1).reshape([n]);
-    let onehot: Tensor<2> = axis.one_hot::<2>(3).float();
-    let onehot = onehot.cast(means.dtype());
+    let onehot = normal_axis(log_scales);
     let normal = rot
         .clone()
         .matmul(onehot.reshape([n, 3, 1]))

@@ -19,7 +19,8 @@ use crate::config::Components;
 use crate::error::ModelError;
 use crate::gaussians::{GaussianSet, ParamKind, SetKind, host_vec, logistic};
 use crate::geometry::{
-    dir_to_camera, facing_normals, quat_to_matrix, to_camera, unbiased_depth, view_dirs,
+    dir_to_camera, facing_normals, normal_axis, quat_to_matrix, to_camera, unbiased_depth,
+    view_dirs,
 };
 use crate::layout;
 use crate::pbr::{self, GBuffer, ShadingParams};
@@ -48,11 +49,11 @@ pub struct Model {
     /// [`crate::config::TrainConfig::surface_opacity_floor`].
     pub surface_opacity_floor: f64,
     /// Blur in each splat's own plane, in pixels^2 at the splat's depth: every render adds
-    /// `plane_blur_px2 (z / f)^2` to the variance along a Gaussian's two largest axes (`z` its
-    /// depth in the camera, `f` the focal length). A splat facing the camera then covers what the
-    /// screen-space blur [`Model::blur_px2`] would make it cover; one seen edge-on (at an
-    /// occluding outline) does not grow across the outline. 0 in training; set for readouts by
-    /// [`Model::detached_with_plane_blur`].
+    /// `plane_blur_px2 (z / fx)^2` to the variance along a Gaussian's two largest axes (`z` its
+    /// depth in the camera, `z / fx` its pixel footprint). A splat facing the camera then
+    /// covers what the screen-space blur [`Model::blur_px2`] would make it cover; one seen
+    /// edge-on (at an occluding outline) does not grow across the outline. 0 in training; set
+    /// for readouts by [`Model::detached_with_plane_blur`].
     pub plane_blur_px2: f64,
 }
 
@@ -383,13 +384,9 @@ impl Model {
         if self.plane_blur_px2 <= 0.0 {
             return scales;
         }
-        let n = means.dims()[0];
         let z = layout::cols(&to_camera(means, camera), 2..3).clamp_min(camera.near);
-        let focal = 0.5 * (camera.fx + camera.fy);
-        let added = (z / focal).powi_scalar(2) * self.plane_blur_px2;
-        let normal_axis = log_scales.clone().detach().argmin(1).reshape([n]);
-        let onehot: Tensor<2> = normal_axis.one_hot::<2>(3).float().cast(scales.dtype());
-        let in_plane = onehot.neg() + 1.0;
+        let added = (z / camera.fx).powi_scalar(2) * self.plane_blur_px2;
+        let in_plane = normal_axis(log_scales).neg() + 1.0;
         (scales.powi_scalar(2) + in_plane * added).sqrt()
     }
 

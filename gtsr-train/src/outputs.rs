@@ -190,11 +190,7 @@ fn fusion_geometry(
     };
     let maps = read(&readout.model)?;
     Ok(match &readout.outlines {
-        Some(plane) => maps.with_farther(
-            read(plane)?,
-            0.5 * (camera.fx + camera.fy),
-            OUTLINE_GAP_FOOTPRINTS,
-        ),
+        Some(plane) => maps.with_farther(read(plane)?, camera.fx, OUTLINE_GAP_FOOTPRINTS),
         None => maps,
     })
 }
