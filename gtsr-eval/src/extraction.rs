@@ -84,6 +84,8 @@ pub const DEFAULT_CARVE_MARGIN: f32 = 1.0;
 pub const DEFAULT_CONCAVITY_GATE: f32 = 3.0;
 /// The default of [`MeshConfig::carve_max_opened`].
 pub const DEFAULT_CARVE_MAX_OPENED: f32 = 0.01;
+/// The default of [`MeshConfig::carve_max_spread`], footprints.
+pub const DEFAULT_CARVE_MAX_SPREAD: f32 = 1.0;
 /// The default tolerance in footprints of [`MeshConfig::cull_unobserved`].
 pub const DEFAULT_CULL_UNOBSERVED: f32 = 3.0;
 /// How far the shading refinement may move a vertex outward, in the masks' footprints, when
@@ -218,6 +220,16 @@ pub struct MeshConfig {
     /// early, a failed one). 1: no check.
     #[arg(skip = DEFAULT_CARVE_MAX_OPENED)]
     pub carve_max_opened: f32,
+    /// Carving: the widest spread the depth's offsets from the masks' bound may have between
+    /// their quartiles ([`crate::hull_offset`], footprints); wider, the carving is refused and
+    /// the bound goes on alone. Where the bound is flush with the object, a depth that is a
+    /// surface lies within a fraction of a footprint of it, so its quartiles lie close
+    /// together; a depth still scattered in front of and behind the surface (a run stopped
+    /// early) spreads them, and its far tail would pass the concavity gate and dig pits into
+    /// the flush surface without opening a silhouette. An object whose concavities fill a
+    /// quarter of what the views see spreads them too: raise it there. 0: no check.
+    #[arg(skip = DEFAULT_CARVE_MAX_SPREAD)]
+    pub carve_max_spread: f32,
     /// Carving: before the gate and the carving read them, move the depth maps towards the
     /// cameras by the median of how far they lie behind the masks' bound where both see the
     /// object ([`crate::hull_offset`], in footprints, when positive): a depth that runs behind
@@ -308,6 +320,7 @@ impl Default for MeshConfig {
             carve_gate_radius: CarveSettings::default().gate_radius,
             cull_unobserved: DEFAULT_CULL_UNOBSERVED,
             carve_max_opened: DEFAULT_CARVE_MAX_OPENED,
+            carve_max_spread: DEFAULT_CARVE_MAX_SPREAD,
             carve_debias: true,
             shading_anchor: DEFAULT_SHADING_ANCHOR,
             shading_depth: 0.0,
@@ -429,6 +442,7 @@ impl MeshConfig {
             ("shading_depth", self.shading_depth),
             ("shading_depth_threshold", self.shading_depth_threshold),
             ("shading_slack", self.shading_slack),
+            ("carve_max_spread", self.carve_max_spread),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(format!(
@@ -772,8 +786,9 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
         // The bound's own depth, for the concavity gate, the depth's offset and the silhouette
         // check: its mesh ray cast per view.
         let guard = config.carve_max_opened < 1.0;
+        let spread_check = config.carve_max_spread > 0.0;
         let hull_maps: Vec<Vec<f32>> =
-            if config.carve_concavity_gate > 0.0 || guard || config.carve_debias {
+            if config.carve_concavity_gate > 0.0 || guard || config.carve_debias || spread_check {
                 let caster = MeshRaycaster::new(bound_mesh, "the masks' mesh")?;
                 inputs
                     .views
@@ -783,10 +798,10 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
             } else {
                 Vec::new()
             };
-        // Without the bound's depth (no gate, guard or debias) there is no offset to read.
-        if let Some([q1, median, q3]) =
-            hull_offset(&depth_maps(inputs.views, &maps, &hull_maps, true))
-        {
+        // Without the bound's depth (no gate, guard, debias or spread check) there is no
+        // offset to read.
+        let offset = hull_offset(&depth_maps(inputs.views, &maps, &hull_maps, true));
+        if let Some([q1, median, q3]) = offset {
             notes.push(format!(
                 "the depth lies {median:+.2} footprints behind the masks' bound (median; \
                  quartiles {q1:+.2}, {q3:+.2})"
@@ -800,62 +815,77 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
                 ));
             }
         }
-        let depths = depth_maps(
-            inputs.views,
-            &maps,
-            &hull_maps,
-            config.carve_concavity_gate > 0.0,
-        );
-        let voxel = config.carve_voxel.unwrap_or(masks.voxel);
-        let carve = config.carve();
-        let (mut mesh, gate) = carve_mesh_counted(&bound, &depths, lo, hi, voxel, &carve)?;
-        if let Some(g) = gate {
+        let spread = offset.map(|[q1, _, q3]| q3 - q1);
+        let mut mesh = if let Some(spread) =
+            spread.filter(|s| spread_check && *s > config.carve_max_spread)
+        {
             notes.push(format!(
-                "concavity gate: {} of {} depth samples lie more than {} footprints behind the \
-                 masks' hull",
-                g.open, g.samples, carve.concavity_gate
+                "carving refused: the depth's offsets from the masks' bound spread over \
+                 {spread:.2} footprints between their quartiles, more than \
+                 mesh.carve_max_spread ({}), so the depth maps are not a surface yet; the mesh \
+                 is the masks' bound",
+                config.carve_max_spread
             ));
-        }
-        if config.cull_unobserved > 0.0 {
-            // Only the carving's own walls (off the masks' mesh) must be seen by a depth map.
-            let hull = SignedDistance::new(bound_mesh, "the masks' mesh")?;
-            let walls: Vec<bool> = mesh
-                .triangles
-                .par_iter()
-                .map(|t| hull.query(face_centroid(&mesh, *t)).0.abs() > masks.voxel)
-                .collect();
-            let seen = faces_observed_among(&mesh, &depths, config.cull_unobserved, &walls)?;
-            let keep: Vec<bool> = walls.iter().zip(&seen).map(|(w, s)| !w || *s).collect();
-            let before = mesh.triangles.len();
-            mesh = faces_kept(&mesh, &keep, "the culling left no face")?;
-            notes.push(format!(
-                "culled {} of {before} faces: carved walls no depth map observes within {} \
-                 footprints",
-                before - mesh.triangles.len(),
-                config.cull_unobserved
-            ));
-        }
-        if guard {
-            let opened = opened_silhouettes(&mesh, inputs.views, &hull_maps)?;
-            let share = opened.share();
-            notes.push(format!(
-                "carving: the carved mesh leaves {} of the {} masked pixels the bound covers \
-                 uncovered ({:.3} %; most in one view {:.3} %)",
-                opened.opened,
-                opened.covered,
-                100.0 * share,
-                100.0 * opened.worst_view
-            ));
-            if share > f64::from(config.carve_max_opened) {
+            bound_mesh.clone()
+        } else {
+            let depths = depth_maps(
+                inputs.views,
+                &maps,
+                &hull_maps,
+                config.carve_concavity_gate > 0.0,
+            );
+            let voxel = config.carve_voxel.unwrap_or(masks.voxel);
+            let carve = config.carve();
+            let (mut carved, gate) = carve_mesh_counted(&bound, &depths, lo, hi, voxel, &carve)?;
+            if let Some(g) = gate {
                 notes.push(format!(
-                    "carving refused: it opens the silhouettes beyond mesh.carve_max_opened \
-                     ({} %), so the depth maps are not a surface yet; the mesh is the masks' \
-                     bound",
-                    100.0 * config.carve_max_opened
+                    "concavity gate: {} of {} depth samples lie more than {} footprints behind the \
+                     masks' hull",
+                    g.open, g.samples, carve.concavity_gate
                 ));
-                mesh = bound_mesh.clone();
             }
-        }
+            if config.cull_unobserved > 0.0 {
+                // Only the carving's own walls (off the masks' mesh) must be seen by a depth map.
+                let hull = SignedDistance::new(bound_mesh, "the masks' mesh")?;
+                let walls: Vec<bool> = carved
+                    .triangles
+                    .par_iter()
+                    .map(|t| hull.query(face_centroid(&carved, *t)).0.abs() > masks.voxel)
+                    .collect();
+                let seen = faces_observed_among(&carved, &depths, config.cull_unobserved, &walls)?;
+                let keep: Vec<bool> = walls.iter().zip(&seen).map(|(w, s)| !w || *s).collect();
+                let before = carved.triangles.len();
+                carved = faces_kept(&carved, &keep, "the culling left no face")?;
+                notes.push(format!(
+                    "culled {} of {before} faces: carved walls no depth map observes within {} \
+                     footprints",
+                    before - carved.triangles.len(),
+                    config.cull_unobserved
+                ));
+            }
+            if guard {
+                let opened = opened_silhouettes(&carved, inputs.views, &hull_maps)?;
+                let share = opened.share();
+                notes.push(format!(
+                    "carving: the carved mesh leaves {} of the {} masked pixels the bound covers \
+                     uncovered ({:.3} %; most in one view {:.3} %)",
+                    opened.opened,
+                    opened.covered,
+                    100.0 * share,
+                    100.0 * opened.worst_view
+                ));
+                if share > f64::from(config.carve_max_opened) {
+                    notes.push(format!(
+                        "carving refused: it opens the silhouettes beyond mesh.carve_max_opened \
+                         ({} %), so the depth maps are not a surface yet; the mesh is the masks' \
+                         bound",
+                        100.0 * config.carve_max_opened
+                    ));
+                    carved = bound_mesh.clone();
+                }
+            }
+            carved
+        };
         if config.shading_anchor > 0.0
             && !inputs.coarse
             && let Some(radiance) = &masks.radiance
@@ -1353,6 +1383,30 @@ mod tests {
             .collect()
     }
 
+    /// The mean distance of a mesh's vertices from the origin-centred sphere of `radius`.
+    fn mean_radial_error(m: &TriMesh, radius: f32) -> f32 {
+        m.positions
+            .iter()
+            .map(|p| (p.length() - radius).abs())
+            .sum::<f32>()
+            / m.positions.len() as f32
+    }
+
+    /// The pixel footprint of [`sphere_masks`]' 32 px views at the sphere's centre.
+    fn sphere_footprint_32() -> f32 {
+        4.0 * (0.5f32 * 0.69).tan() * 2.0 / 32.0
+    }
+
+    /// The carving alone on the sphere: no silhouette check, no culling, a 0.03 grid.
+    fn carving_only() -> MeshConfig {
+        MeshConfig {
+            carve_max_opened: 1.0,
+            cull_unobserved: 0.0,
+            carve_voxel: Some(0.03),
+            ..MeshConfig::default()
+        }
+    }
+
     /// [`extract_mesh`] under `config` of the sphere's masks and depth maps (one per view),
     /// in the box `[-1.2, 1.2]^3`.
     fn sphere_extract(
@@ -1494,21 +1548,12 @@ mod tests {
         let extract = |debias: bool| {
             let config = MeshConfig {
                 carve_debias: debias,
-                carve_max_opened: 1.0,
-                cull_unobserved: 0.0,
-                carve_voxel: Some(0.03),
-                ..MeshConfig::default()
+                ..carving_only()
             };
             sphere_extract(&masks, &maps, &config)
         };
-        let mean_error = |m: &TriMesh| {
-            m.positions
-                .iter()
-                .map(|p| (p.length() - radius).abs())
-                .sum::<f32>()
-                / m.positions.len() as f32
-        };
-        let footprint = 4.0 * (0.5f32 * 0.69).tan() * 2.0 / 32.0;
+        let mean_error = |m: &TriMesh| mean_radial_error(m, radius);
+        let footprint = sphere_footprint_32();
         let (biased, _) = extract(false);
         let (debiased, notes) = extract(true);
         let moved: f32 = notes
@@ -1528,6 +1573,68 @@ mod tests {
             e_debiased < e_bound + 0.05 * footprint,
             "moved back, it carves nothing: {e_debiased} against the bound's {e_bound}"
         );
+    }
+
+    /// A depth still scattered about the surface (blocks of pixels 8 footprints behind it, 40 %
+    /// of them, different in every view) digs pits into a sphere through the concavity gate
+    /// without opening a silhouette; its offsets from the bound spread over 8 footprints
+    /// between their quartiles, so the spread check refuses the carving. The sphere's own depth
+    /// is carved as before.
+    #[test]
+    fn a_scattered_depth_is_refused_by_the_spread_of_its_offsets() {
+        let radius = 0.8;
+        let masks = MasksAlone::new(sphere_masks(24, 32, radius))
+            .unwrap()
+            .expect("a sphere");
+        let exact = sphere_depth_maps(&masks, radius, |z, _| z);
+        let scattered: Vec<Vec<f32>> = (exact.iter().zip(&masks.views).enumerate())
+            .map(|(v, (depth, (cam, _)))| {
+                (depth.iter().enumerate())
+                    .map(|(k, z)| {
+                        let (i, j) = (k % 32 / 4, k / 32 / 4);
+                        let hash = (v * 131 + j * 17 + i * 7) * 2_654_435_761 % 1000;
+                        if *z > 0.0 && hash < 400 {
+                            z * (1.0 + 8.0 / cam.fx)
+                        } else {
+                            *z
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let extract = |maps: &[Vec<f32>], max_spread: f32| {
+            let config = MeshConfig {
+                carve_max_spread: max_spread,
+                ..carving_only()
+            };
+            sphere_extract(&masks, maps, &config)
+        };
+        let refused = |notes: &[String]| {
+            notes
+                .iter()
+                .any(|n| n.starts_with("carving refused: the depth's offsets"))
+        };
+        let mean_error = |m: &TriMesh| mean_radial_error(m, radius);
+        let footprint = sphere_footprint_32();
+        let e_bound = mean_error(masks.bound_mesh());
+        let (dug, notes) = extract(&scattered, 0.0);
+        assert!(!refused(&notes), "{notes:?}");
+        assert!(
+            mean_error(&dug) > e_bound + 0.25 * footprint,
+            "unchecked, the scattered depth digs: {} against the bound's {e_bound} (footprint \
+             {footprint})",
+            mean_error(&dug)
+        );
+        let (kept, notes) = extract(&scattered, DEFAULT_CARVE_MAX_SPREAD);
+        assert!(refused(&notes), "{notes:?}");
+        assert_eq!(&kept, masks.bound_mesh());
+        let (_, notes) = extract(&exact, DEFAULT_CARVE_MAX_SPREAD);
+        assert!(!refused(&notes), "{notes:?}");
+        let bad = MeshConfig {
+            carve_max_spread: -1.0,
+            ..MeshConfig::default()
+        };
+        assert!(bad.validate().is_err());
     }
 
     /// The radiance given for the shading refinement must match the masks view for view.

@@ -64,7 +64,8 @@ pub struct Args {
     /// of that step's model, e.g. in a copy of a run folder with other mesh settings.
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     pub stop_at: Option<u64>,
-    /// Evaluations (test PSNR/SSIM, mesh chamfer) along the run for the error-against-time log.
+    /// Evaluations (test PSNR/SSIM, mesh chamfer) along the run for the error-against-time log
+    /// (0: none; the final evaluation always runs).
     #[arg(long, default_value_t = 10)]
     pub eval_points: usize,
     /// Time every step by phase (kernels, Burn ops, Adam, densification) and print the mean

@@ -716,8 +716,8 @@ pub fn run(args: &Args) -> Result<Outcome> {
             stop_at.saturating_sub(1).max(1)
         );
     }
-    let eval_steps: Vec<usize> = (1..=args.eval_points.max(1))
-        .map(|k| (iterations * k).div_ceil(args.eval_points.max(1)))
+    let eval_steps: Vec<usize> = (1..=args.eval_points)
+        .map(|k| (iterations * k).div_ceil(args.eval_points))
         .map(|s| {
             if densify.resets_after(s) && s > 1 {
                 s - 1

@@ -103,11 +103,10 @@ fn trains_a_tiny_scene_and_writes_every_output() {
     // The masks alone are scored beside the mesh, and both split by what the masks miss.
     let masks = m["masks_alone"]["chamfer"].as_f64().unwrap();
     assert!(masks.is_finite() && masks > 0.0, "{m}");
-    // Forty steps leave a depth far behind the surface: it would carve through the object,
-    // so the carving is refused (it opens the silhouettes) and the mesh does not lose to the
-    // masks alone.
+    // Forty steps leave a depth far behind the surface and scattered about it (not a surface
+    // yet): the carving is refused and the mesh does not lose to the masks alone.
     assert!(
-        text(&o).contains("carving: the carved mesh leaves"),
+        text(&o).contains("carving refused: the depth's offsets from the masks' bound spread"),
         "{}",
         text(&o)
     );
@@ -290,12 +289,17 @@ fn trains_a_tiny_scene_and_writes_every_output() {
             "--coarse-until",
             "1",
             "--eval-points",
-            "1",
+            "0",
             "--checkpoint-every",
             "0",
         ],
     );
     assert!(o.status.success(), "{}", text(&o));
+    // No evaluation along the run: the curve holds the final one alone.
+    assert!(!text(&o).contains("eval @"), "{}", text(&o));
+    let t = gtsr_eval::Timeline::read_csv(&short.join("error_vs_time.csv")).unwrap();
+    assert_eq!(t.points.len(), 1, "{t:?}");
+    assert_eq!(t.points[0].label, gtsr_eval::FINAL_LABEL);
     assert!(
         text(&o).contains("component pbr: off (--pbr false"),
         "{}",
