@@ -433,6 +433,14 @@ pub struct LossWeights {
     #[serde(default)]
     #[arg(skip)]
     pub hull_depth_occluders: f64,
+    /// With [`LossWeights::hull_depth`]: the share of the run's steps before which the term is
+    /// off (0: it runs from the start of stage 2). Stage 2 starts with the surface set on the
+    /// masks' bound everywhere, over the concavities the masks cannot see too, and the term
+    /// holds it there; started later, it finds the surface set already behind the bound where
+    /// the images put it there, beyond the term's band.
+    #[serde(default)]
+    #[arg(skip)]
+    pub hull_depth_from: f64,
 }
 
 impl Default for LossWeights {
@@ -459,6 +467,7 @@ impl Default for LossWeights {
             hull_depth: 0.0,
             hull_depth_edges: 0.0,
             hull_depth_occluders: 0.0,
+            hull_depth_from: 0.0,
         }
     }
 }
@@ -969,6 +978,12 @@ impl TrainConfig {
             bad.push(format!(
                 "weights.lambda_l1 must be in [0, 1], got {}",
                 self.weights.lambda_l1
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.weights.hull_depth_from) {
+            bad.push(format!(
+                "weights.hull_depth_from must be a share of the run in [0, 1], got {}",
+                self.weights.hull_depth_from
             ));
         }
         if !(0.0..=1.0).contains(&self.f0) {

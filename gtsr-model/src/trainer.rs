@@ -727,7 +727,9 @@ impl Trainer {
                         * w.front_depth,
                 );
             }
-            if let (Some(hull), true) = (&view.hull_depth, w.hull_depth > 0.0) {
+            let hull_on =
+                w.hull_depth > 0.0 && step as f64 >= w.hull_depth_from * cfg.iterations as f64;
+            if let (Some(hull), true) = (&view.hull_depth, hull_on) {
                 add(
                     "hull_depth",
                     losses::hull_depth(

@@ -3,7 +3,10 @@
 use gtsr_model::config::Preset;
 use gtsr_model::gaussians::ParamKind;
 
-use crate::common::{device, small_config, tiny_scene, trainer};
+use burn::tensor::Tensor;
+use gtsr_model::trainer::{Trainer, initial_points};
+
+use crate::common::{device, small_config, tiny_scene, trainer, views};
 
 #[test]
 fn short_training_run_lowers_the_photometric_loss() {
@@ -297,4 +300,30 @@ fn loss_weights_can_be_replaced_but_not_with_refused_ones() {
     );
     let r = t.step().unwrap();
     assert!(!r.skipped && r.loss.is_finite());
+}
+
+/// `weights.hull_depth_from` keeps the hull-depth term off until that share of the run, in
+/// stage 2 too, and on after it.
+#[test]
+fn the_hull_depth_term_starts_at_its_share_of_the_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    let mut cfg = small_config(Preset::Full.components().unwrap(), 30);
+    cfg.weights.hull_depth = 0.03;
+    cfg.weights.hull_depth_from = 0.5;
+    let mut vs = views(&scene, &device);
+    for v in &mut vs {
+        let (w, h) = v.size();
+        v.hull_depth = Some(Tensor::ones([h, w], &device) * 4.0);
+    }
+    let pts = initial_points(&cfg, &vs, &scene.train).expect("points");
+    let mut t = Trainer::new(cfg, vs, 1.0, &pts, &device).expect("trainer");
+    let has_term = |t: &mut Trainer, step: usize| {
+        (t.forward(step).unwrap().terms.iter()).any(|(name, _)| *name == "hull_depth")
+    };
+    assert!(t.is_stage2(12));
+    assert!(!has_term(&mut t, 12), "off before half the run");
+    assert!(has_term(&mut t, 15), "on from half the run");
+    assert!(has_term(&mut t, 25));
 }
