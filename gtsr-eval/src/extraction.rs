@@ -773,12 +773,7 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
         && inputs.masked
         && let Some(masks) = inputs.masks
     {
-        // The bound: the edge hull where the masks carry one and the settings ask for it.
-        let (bound, bound_mesh) = if config.edge_hull {
-            (masks.bound(), masks.bound_mesh())
-        } else {
-            (masks.borrowed(), &masks.mesh)
-        };
+        let (_, bound_mesh) = carving_bound(config, masks);
         if !config.fuse_depth {
             return Ok((bound_mesh.clone(), notes));
         }
@@ -816,76 +811,19 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
             }
         }
         let spread = offset.map(|[q1, _, q3]| q3 - q1);
-        let mut mesh = if let Some(spread) =
-            spread.filter(|s| spread_check && *s > config.carve_max_spread)
-        {
-            notes.push(format!(
-                "carving refused: the depth's offsets from the masks' bound spread over \
+        let mut mesh =
+            if let Some(spread) = spread.filter(|s| spread_check && *s > config.carve_max_spread) {
+                notes.push(format!(
+                    "carving refused: the depth's offsets from the masks' bound spread over \
                  {spread:.2} footprints between their quartiles, more than \
                  mesh.carve_max_spread ({}), so the depth maps are not a surface yet; the mesh \
                  is the masks' bound",
-                config.carve_max_spread
-            ));
-            bound_mesh.clone()
-        } else {
-            let depths = depth_maps(
-                inputs.views,
-                &maps,
-                &hull_maps,
-                config.carve_concavity_gate > 0.0,
-            );
-            let voxel = config.carve_voxel.unwrap_or(masks.voxel);
-            let carve = config.carve();
-            let (mut carved, gate) = carve_mesh_counted(&bound, &depths, lo, hi, voxel, &carve)?;
-            if let Some(g) = gate {
-                notes.push(format!(
-                    "concavity gate: {} of {} depth samples lie more than {} footprints behind the \
-                     masks' hull",
-                    g.open, g.samples, carve.concavity_gate
+                    config.carve_max_spread
                 ));
-            }
-            if config.cull_unobserved > 0.0 {
-                // Only the carving's own walls (off the masks' mesh) must be seen by a depth map.
-                let hull = SignedDistance::new(bound_mesh, "the masks' mesh")?;
-                let walls: Vec<bool> = carved
-                    .triangles
-                    .par_iter()
-                    .map(|t| hull.query(face_centroid(&carved, *t)).0.abs() > masks.voxel)
-                    .collect();
-                let seen = faces_observed_among(&carved, &depths, config.cull_unobserved, &walls)?;
-                let keep: Vec<bool> = walls.iter().zip(&seen).map(|(w, s)| !w || *s).collect();
-                let before = carved.triangles.len();
-                carved = faces_kept(&carved, &keep, "the culling left no face")?;
-                notes.push(format!(
-                    "culled {} of {before} faces: carved walls no depth map observes within {} \
-                     footprints",
-                    before - carved.triangles.len(),
-                    config.cull_unobserved
-                ));
-            }
-            if guard {
-                let opened = opened_silhouettes(&carved, inputs.views, &hull_maps)?;
-                let share = opened.share();
-                notes.push(format!(
-                    "carving: the carved mesh leaves {} of the {} masked pixels the bound covers \
-                     uncovered ({:.3} %; most in one view {:.3} %)",
-                    opened.opened,
-                    opened.covered,
-                    100.0 * share,
-                    100.0 * opened.worst_view
-                ));
-                if share > f64::from(config.carve_max_opened) {
-                    notes.push(format!(
-                        "carving refused: it opens the silhouettes beyond mesh.carve_max_opened \
-                         ({} %), so the depth maps are not a surface yet; the mesh is the masks' \
-                         bound",
-                        100.0 * config.carve_max_opened
-                    ));
-                    carved = bound_mesh.clone();
-                }
-            }
-            carved
-        };
+                bound_mesh.clone()
+            } else {
+                carve_inside_bound(config, inputs, masks, &maps, &hull_maps, &mut notes)?
+            };
         if config.shading_anchor > 0.0
             && !inputs.coarse
             && let Some(radiance) = &masks.radiance
@@ -1025,6 +963,92 @@ struct DepthFrom<'a> {
     length: f32,
     /// Footprints.
     threshold: f32,
+}
+
+/// The views and the mesh that bound the carving: the edge hull where the masks carry one
+/// and the settings ask for it, else the masks.
+fn carving_bound<'a>(
+    config: &MeshConfig,
+    masks: &'a MasksAlone,
+) -> (Vec<(Camera, &'a [f32])>, &'a TriMesh) {
+    if config.edge_hull {
+        (masks.bound(), masks.bound_mesh())
+    } else {
+        (masks.borrowed(), &masks.mesh)
+    }
+}
+
+/// The carving of [`extract_mesh`]: the depth maps (already moved by their offset) carve
+/// inside the masks' bound where the concavity gate lets them, the walls no map observes are
+/// culled, and a carving that opens the silhouettes is refused (the bound instead).
+fn carve_inside_bound(
+    config: &MeshConfig,
+    inputs: &FusionInputs,
+    masks: &MasksAlone,
+    maps: &[Vec<f32>],
+    hull_maps: &[Vec<f32>],
+    notes: &mut Vec<String>,
+) -> Result<TriMesh> {
+    let (lo, hi) = inputs.bounds;
+    let (bound, bound_mesh) = carving_bound(config, masks);
+    let guard = config.carve_max_opened < 1.0;
+    let depths = depth_maps(
+        inputs.views,
+        maps,
+        hull_maps,
+        config.carve_concavity_gate > 0.0,
+    );
+    let voxel = config.carve_voxel.unwrap_or(masks.voxel);
+    let carve = config.carve();
+    let (mut carved, gate) = carve_mesh_counted(&bound, &depths, lo, hi, voxel, &carve)?;
+    if let Some(g) = gate {
+        notes.push(format!(
+            "concavity gate: {} of {} depth samples lie more than {} footprints behind the \
+             masks' hull",
+            g.open, g.samples, carve.concavity_gate
+        ));
+    }
+    if config.cull_unobserved > 0.0 {
+        // Only the carving's own walls (off the masks' mesh) must be seen by a depth map.
+        let hull = SignedDistance::new(bound_mesh, "the masks' mesh")?;
+        let walls: Vec<bool> = carved
+            .triangles
+            .par_iter()
+            .map(|t| hull.query(face_centroid(&carved, *t)).0.abs() > masks.voxel)
+            .collect();
+        let seen = faces_observed_among(&carved, &depths, config.cull_unobserved, &walls)?;
+        let keep: Vec<bool> = walls.iter().zip(&seen).map(|(w, s)| !w || *s).collect();
+        let before = carved.triangles.len();
+        carved = faces_kept(&carved, &keep, "the culling left no face")?;
+        notes.push(format!(
+            "culled {} of {before} faces: carved walls no depth map observes within {} \
+             footprints",
+            before - carved.triangles.len(),
+            config.cull_unobserved
+        ));
+    }
+    if guard {
+        let opened = opened_silhouettes(&carved, inputs.views, hull_maps)?;
+        let share = opened.share();
+        notes.push(format!(
+            "carving: the carved mesh leaves {} of the {} masked pixels the bound covers \
+             uncovered ({:.3} %; most in one view {:.3} %)",
+            opened.opened,
+            opened.covered,
+            100.0 * share,
+            100.0 * opened.worst_view
+        ));
+        if share > f64::from(config.carve_max_opened) {
+            notes.push(format!(
+                "carving refused: it opens the silhouettes beyond mesh.carve_max_opened \
+                 ({} %), so the depth maps are not a surface yet; the mesh is the masks' \
+                 bound",
+                100.0 * config.carve_max_opened
+            ));
+            carved = bound_mesh.clone();
+        }
+    }
+    Ok(carved)
 }
 
 /// `mesh` refined by the shading of the masks' views ([`refine_by_shading`]) with the settings
