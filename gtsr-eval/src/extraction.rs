@@ -810,20 +810,8 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
                 ));
             }
         }
-        let spread = offset.map(|[q1, _, q3]| q3 - q1);
         let mut mesh =
-            if let Some(spread) = spread.filter(|s| spread_check && *s > config.carve_max_spread) {
-                notes.push(format!(
-                    "carving refused: the depth's offsets from the masks' bound spread over \
-                 {spread:.2} footprints between their quartiles, more than \
-                 mesh.carve_max_spread ({}), so the depth maps are not a surface yet; the mesh \
-                 is the masks' bound",
-                    config.carve_max_spread
-                ));
-                bound_mesh.clone()
-            } else {
-                carve_inside_bound(config, inputs, masks, &maps, &hull_maps, &mut notes)?
-            };
+            carve_inside_bound(config, inputs, masks, &maps, &hull_maps, offset, &mut notes)?;
         if config.shading_anchor > 0.0
             && !inputs.coarse
             && let Some(radiance) = &masks.radiance
@@ -979,19 +967,41 @@ fn carving_bound<'a>(
 }
 
 /// The carving of [`extract_mesh`]: the depth maps (already moved by their offset) carve
-/// inside the masks' bound where the concavity gate lets them, the walls no map observes are
-/// culled, and a carving that opens the silhouettes is refused (the bound instead).
+/// inside the masks' bound where the concavity gate lets them, and the walls no map observes
+/// are culled. The carving is refused (the bound instead) when the maps are not a surface
+/// yet: their `offset` quartiles from the bound ([`hull_offset`]) spread wider than
+/// [`MeshConfig::carve_max_spread`], or the carved mesh opens the silhouettes.
 fn carve_inside_bound(
     config: &MeshConfig,
     inputs: &FusionInputs,
     masks: &MasksAlone,
     maps: &[Vec<f32>],
     hull_maps: &[Vec<f32>],
+    offset: Option<[f32; 3]>,
     notes: &mut Vec<String>,
 ) -> Result<TriMesh> {
     let (lo, hi) = inputs.bounds;
     let (bound, bound_mesh) = carving_bound(config, masks);
-    let guard = config.carve_max_opened < 1.0;
+    let refused = |notes: &mut Vec<String>, why: String| {
+        notes.push(format!(
+            "carving refused: {why}, so the depth maps are not a surface yet; the mesh is the \
+             masks' bound"
+        ));
+        Ok(bound_mesh.clone())
+    };
+    if let Some(spread) = offset
+        .map(|[q1, _, q3]| q3 - q1)
+        .filter(|s| config.carve_max_spread > 0.0 && *s > config.carve_max_spread)
+    {
+        return refused(
+            notes,
+            format!(
+                "the depth's offsets from the masks' bound spread over {spread:.2} footprints \
+                 between their quartiles, more than mesh.carve_max_spread ({})",
+                config.carve_max_spread
+            ),
+        );
+    }
     let depths = depth_maps(
         inputs.views,
         maps,
@@ -1027,7 +1037,7 @@ fn carve_inside_bound(
             config.cull_unobserved
         ));
     }
-    if guard {
+    if config.carve_max_opened < 1.0 {
         let opened = opened_silhouettes(&carved, inputs.views, hull_maps)?;
         let share = opened.share();
         notes.push(format!(
@@ -1039,13 +1049,13 @@ fn carve_inside_bound(
             100.0 * opened.worst_view
         ));
         if share > f64::from(config.carve_max_opened) {
-            notes.push(format!(
-                "carving refused: it opens the silhouettes beyond mesh.carve_max_opened \
-                 ({} %), so the depth maps are not a surface yet; the mesh is the masks' \
-                 bound",
-                100.0 * config.carve_max_opened
-            ));
-            carved = bound_mesh.clone();
+            return refused(
+                notes,
+                format!(
+                    "it opens the silhouettes beyond mesh.carve_max_opened ({} %)",
+                    100.0 * config.carve_max_opened
+                ),
+            );
         }
     }
     Ok(carved)
