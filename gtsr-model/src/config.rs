@@ -53,6 +53,10 @@ pub fn parse_open_unit(s: &str) -> Result<f64, String> {
     }
 }
 
+fn every_step() -> usize {
+    1
+}
+
 /// Parses a count `>= 1`.
 pub fn parse_count(s: &str) -> Result<usize, String> {
     let v: usize = s.parse().map_err(|e| format!("{e}"))?;
@@ -759,6 +763,12 @@ pub struct TrainConfig {
     /// are left out.
     #[arg(long = "multi-view-max-error", id = "train.multi_view_max_error_px", value_name = "PX", default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).multi_view_max_error_px, value_parser = parse_positive, help_heading = "Training")]
     pub multi_view_max_error_px: f64,
+    /// Multi-view: the term runs on one step in this many, weighted by it so that its mean
+    /// pull stays the same (1: every step, as PGSR). The neighbour's render is one of the
+    /// four raster passes of a full stage-2 step, with its backward pass. Default: 2.
+    #[arg(long = "multi-view-every", id = "train.multi_view_every", value_name = "N", default_value_t = TrainConfig::for_iterations(Components::FULL, 30_000).multi_view_every, value_parser = parse_count, help_heading = "Training")]
+    #[serde(default = "every_step")]
+    pub multi_view_every: usize,
     /// Steps trained at half the resolution before the full one (0: none; a coarse-to-fine
     /// schedule, applied by the front end that loads the views).
     #[arg(long = "coarse-until", id = "train.coarse_until", value_name = "STEP", default_value_t = 0, value_parser = clap::value_parser!(usize), help_heading = "Training")]
@@ -838,6 +848,7 @@ impl TrainConfig {
             pbr_srgb_output: true,
             neighbour_max_angle_deg: 30.0,
             multi_view_max_error_px: 1.0,
+            multi_view_every: 2,
             coarse_until: 0,
             seed: 0,
             blur_px2: gtsr_render_kernels::PIXEL_BOX_BLUR_PX2,

@@ -137,9 +137,16 @@ struct Prepared {
     quats: Tensor<2>,
     scales: Tensor<2>,
     opacities: Tensor<1>,
-    colours: Tensor<2>,
+    /// The SH colours for the camera; `None` where the caller splats other features.
+    colours: Option<Tensor<2>>,
     normals_w: Option<Tensor<2>>,
     offsets: Option<Tensor<2>>,
+}
+
+impl Prepared {
+    fn colours(&self) -> Tensor<2> {
+        self.colours.clone().expect("colours prepared")
+    }
 }
 
 /// The kernels' inputs for a prepared set with `opacities` and `features`.
@@ -208,7 +215,11 @@ fn cat_prepared(a: &Prepared, b: &Prepared) -> Prepared {
         quats: cat2(&a.quats, &b.quats),
         scales: cat2(&a.scales, &b.scales),
         opacities: Tensor::cat(vec![a.opacities.clone(), b.opacities.clone()], 0),
-        colours: cat2(&a.colours, &b.colours),
+        colours: a
+            .colours
+            .as_ref()
+            .zip(b.colours.as_ref())
+            .map(|(x, y)| cat2(x, y)),
         normals_w: None,
         offsets: match (&a.offsets, &b.offsets) {
             (Some(x), Some(y)) => Some(cat2(x, y)),
@@ -336,19 +347,21 @@ impl Model {
         set: &GaussianSet,
         camera: &Camera,
         normals: bool,
+        colours: bool,
         offsets: bool,
     ) -> Prepared {
         let means = set.req(ParamKind::Means).clone();
         let quats = set.req(ParamKind::Rotations).clone();
         let log_scales = set.req(ParamKind::LogScales).clone();
         let centre = camera.centre();
-        let dirs = view_dirs(&means, centre);
-        let colours = sh::colours(
-            set.req(ParamKind::ShDc),
-            set.get(ParamKind::ShRest),
-            &dirs,
-            self.sh_degree,
-        );
+        let colours = colours.then(|| {
+            sh::colours(
+                set.req(ParamKind::ShDc),
+                set.get(ParamKind::ShRest),
+                &view_dirs(&means, centre),
+                self.sh_degree,
+            )
+        });
         let normals_w =
             normals.then(|| facing_normals(&quat_to_matrix(&quats), &log_scales, &means, centre));
         let n = set.len();
@@ -434,7 +447,13 @@ impl Model {
         let pbr = opts.stage2 && c.pbr && opts.geometry;
         let material = pbr && self.surface.get(ParamKind::BaseColour).is_some();
         let need_normals = opts.geometry || fresnel;
-        let surf = self.prepare(&self.surface, camera, need_normals, opts.track_offsets);
+        let surf = self.prepare(
+            &self.surface,
+            camera,
+            need_normals,
+            true,
+            opts.track_offsets,
+        );
         let ns = self.surface.len();
         let mut passes = 0;
         let mut tile_splats = 0;
@@ -443,7 +462,7 @@ impl Model {
         // C_SH (merged with the geometry pass when they blend the same splats alike).
         let merged = interior.is_none() && !fresnel;
         let (c_sh, alpha_sh, surface_radii, interior_radii, int_prepared) = if merged {
-            let mut feats = vec![surf.colours.clone()];
+            let mut feats = vec![surf.colours()];
             if opts.geometry {
                 feats.push(self.geometry_features(&surf, camera, material, opts.spread));
             }
@@ -486,12 +505,12 @@ impl Model {
             };
             let (all, int_p) = match interior {
                 Some(set) => {
-                    let ip = self.prepare(set, camera, false, opts.track_offsets);
+                    let ip = self.prepare(set, camera, false, true, opts.track_offsets);
                     (cat_prepared(&surf_w, &ip), Some(ip))
                 }
                 None => (surf_w, None),
             };
-            let out = self.splat(&all, all.opacities.clone(), all.colours.clone(), camera)?;
+            let out = self.splat(&all, all.opacities.clone(), all.colours(), camera)?;
             passes += 1;
             let (radii, tiles) = radii_and_tiles(out.aux);
             tile_splats += tiles;
@@ -536,7 +555,7 @@ impl Model {
                 let colours = if opts.shading.scatter_lambert {
                     sh::dc_colours(set.req(ParamKind::ShDc))
                 } else {
-                    ip.colours.clone()
+                    ip.colours()
                 };
                 let out = self.splat(ip, ip.opacities.clone(), colours, camera)?;
                 passes += 1;
@@ -589,7 +608,7 @@ impl Model {
         camera: &Camera,
         rays: &Tensor<3>,
     ) -> Result<GeometryMaps, ModelError> {
-        let surf = self.prepare(&self.surface, camera, true, false);
+        let surf = self.prepare(&self.surface, camera, true, false, false);
         let feats = self.geometry_features(&surf, camera, false, false);
         let out = self.splat(&surf, surf.opacities.clone(), feats, camera)?;
         let tiles = radii_and_tiles(out.aux).1;
@@ -605,14 +624,14 @@ impl Model {
         rays: &Tensor<3>,
     ) -> Result<GeometryMaps, ModelError> {
         let constant = |t: &Tensor<2>| t.clone().detach().set_require_grad(false);
-        let surf = self.prepare(&self.surface, camera, true, false);
+        let surf = self.prepare(&self.surface, camera, true, false, false);
         let feats = constant(&self.geometry_features(&surf, camera, false, false));
         let fixed = Prepared {
             means: constant(&surf.means),
             quats: constant(&surf.quats),
             scales: constant(&surf.scales),
             opacities: surf.opacities.clone(),
-            colours: constant(&surf.colours),
+            colours: None,
             normals_w: None,
             offsets: surf.offsets.as_ref().map(constant),
         };
@@ -658,7 +677,7 @@ impl Model {
         rays: &Tensor<3>,
         threshold: f64,
     ) -> Result<GeometryMaps, ModelError> {
-        let surf = self.prepare(&self.surface, camera, true, false);
+        let surf = self.prepare(&self.surface, camera, true, false, false);
         let feats = self.geometry_features(&surf, camera, false, false);
         let cfg = self.splat_config(camera, feats.dims()[1]);
         let inputs = splat_inputs(&surf, surf.opacities.clone(), feats);

@@ -688,7 +688,8 @@ impl Trainer {
                         * l2,
                 );
             }
-            if c.multi_view && !self.neighbours[vi].is_empty() {
+            let every = cfg.multi_view_every.max(1);
+            if c.multi_view && !self.neighbours[vi].is_empty() && step.is_multiple_of(every) {
                 let mut rng = step_rng(cfg.seed, step, RNG_NEIGHBOUR);
                 let list = &self.neighbours[vi];
                 let ni = list[rng.random_range(0..list.len())];
@@ -707,7 +708,7 @@ impl Trainer {
                     &nv.camera,
                     cfg.multi_view_max_error_px,
                 );
-                add("multi_view", mv.loss * w.multi_view);
+                add("multi_view", mv.loss * (w.multi_view * every as f64));
             }
             if stage2 && w.front_depth > 0.0 {
                 let front = self.model.detached().render_depth_crossing(

@@ -39,6 +39,8 @@ pub fn small_config(components: Components, iterations: usize) -> TrainConfig {
     c.sh_increase_every = 5;
     // Eight views on a sphere are about 70 degrees apart.
     c.neighbour_max_angle_deg = 90.0;
+    // Every term on every stage-2 step, whatever the default.
+    c.multi_view_every = 1;
     c.densify.start = 10;
     c.densify.every = 10;
     c.densify.end = iterations;

@@ -327,3 +327,36 @@ fn the_hull_depth_term_starts_at_its_share_of_the_run() {
     assert!(has_term(&mut t, 15), "on from half the run");
     assert!(has_term(&mut t, 25));
 }
+
+#[test]
+fn the_multi_view_term_runs_one_step_in_n_weighted_by_n() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    let build = |every: usize| {
+        let mut cfg = small_config(Preset::Full.components().unwrap(), 30);
+        cfg.multi_view_every = every;
+        let vs = views(&scene, &device);
+        let pts = initial_points(&cfg, &vs, &scene.train).expect("points");
+        Trainer::new(cfg, vs, 1.0, &pts, &device).expect("trainer")
+    };
+    let term = |t: &mut Trainer, step: usize| {
+        let f = t.forward(step).unwrap();
+        let mv = f.terms.iter().find(|(name, _)| *name == "multi_view");
+        mv.map(|(_, v)| v.clone().into_scalar::<f64>())
+    };
+    let (mut every, mut thirds) = (build(1), build(3));
+    assert!(every.is_stage2(12));
+    for step in 12..16 {
+        let full = term(&mut every, step).expect("the term runs on every step at 1");
+        assert!(full > 0.0, "step {step}: no reprojection error to weigh");
+        match term(&mut thirds, step) {
+            Some(v) if step % 3 == 0 => assert!(
+                (v - 3.0 * full).abs() <= 1e-5 * full.abs().max(1e-6),
+                "step {step}: {v} against 3 x {full}"
+            ),
+            Some(v) => panic!("step {step}: the term ran ({v}) off its steps"),
+            None => assert!(step % 3 != 0, "step {step}: the term did not run"),
+        }
+    }
+}
