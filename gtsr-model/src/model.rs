@@ -342,6 +342,10 @@ impl Model {
         self.log_light.as_ref().map(|l| l.clone().exp())
     }
 
+    /// What the kernels need of `set` for `camera`: means, rotations, blurred scales and
+    /// opacities always; world normals facing the camera with `normals`; SH colours in the
+    /// camera's view directions with `colours` (depth-only renders splat other features);
+    /// tracked screen offsets with `offsets` when the set's means are differentiable.
     fn prepare(
         &self,
         set: &GaussianSet,
