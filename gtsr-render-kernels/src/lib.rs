@@ -1,8 +1,10 @@
 //! Differentiable 3D Gaussian splatting kernels for [Burn](https://burn.dev).
 //!
-//! This crate knows Gaussians, cameras and pixels, nothing of any paper. It provides one
-//! backend extension, [`backend::SplatBackend`], that splats `N` Gaussians with `C` feature
-//! channels into an image, and its backward pass. Use it through [`render`]:
+//! This crate knows Gaussians, cameras and pixels, nothing of any paper. Its backend
+//! extension [`backend::SplatBackend`] splats `N` Gaussians with `C` feature channels into an
+//! image, with its backward pass; a second, [`blur::BlurBackend`], blurs image planes with a
+//! separable window (SSIM's Gaussian) on the CPU ([`blur_planes`]). Use the splats through
+//! [`render`]:
 //!
 //! - inputs are ordinary Burn tensors (see [`SplatInputs`]); on an autodiff device the image
 //!   and alpha are differentiable with respect to means, rotations, scales, opacities, features
@@ -39,6 +41,7 @@ pub mod antialias;
 pub mod api;
 mod autodiff;
 pub mod backend;
+pub mod blur;
 pub mod camera;
 pub mod config;
 pub mod cpu;
@@ -52,6 +55,7 @@ pub use api::{
     CrossingOutput, RenderError, RenderOutput, SplatInputs, device_supported, render,
     render_crossing,
 };
+pub use blur::{BlurWindow, BlurWindowError, blur_planes};
 pub use camera::{Camera, CameraError};
 pub use config::{AlphaCutoff, BLUR_PX2, PIXEL_BOX_BLUR_PX2, SplatConfig, TILE_PIXELS, TILE_SIZE};
 

@@ -1,6 +1,7 @@
 //! L1 and SSIM (11x11 Gaussian window, sigma 1.5, zero padding, as 3DGS), differentiable.
 
-use burn::tensor::{Tensor, TensorData};
+use burn::tensor::Tensor;
+use gtsr_render_kernels::{BlurWindow, blur_planes};
 
 const WINDOW: usize = 11;
 const SIGMA: f64 = 1.5;
@@ -12,63 +13,9 @@ pub fn l1<const D: usize>(a: Tensor<D>, b: Tensor<D>) -> Tensor<1> {
     (a - b).abs().mean()
 }
 
-fn gaussian_window() -> Vec<f32> {
-    let half = (WINDOW / 2) as f64;
-    let w: Vec<f64> = (0..WINDOW)
-        .map(|i| (-(i as f64 - half).powi(2) / (2.0 * SIGMA * SIGMA)).exp())
-        .collect();
-    let s: f64 = w.iter().sum();
-    w.iter().map(|v| (v / s) as f32).collect()
-}
-
-/// `[n, n]` matrix `B` of the 1-D Gaussian blur with zero padding on a length-`n` signal:
-/// `(B x)[i] = sum_k g[k] x[i + k - p]`, with `p = WINDOW / 2` and `x` zero outside `[0, n)`.
-fn blur_matrix(n: usize) -> Vec<f32> {
-    let g = gaussian_window();
-    let p = WINDOW / 2;
-    let mut m = vec![0f32; n * n];
-    for i in 0..n {
-        for (k, &gk) in g.iter().enumerate() {
-            if let Some(j) = (i + k).checked_sub(p).filter(|&j| j < n) {
-                m[i * n + j] = gk;
-            }
-        }
-    }
-    m
-}
-
-/// The blur matrices of [`blur`] for `[C, H, W]` planes: `B_w` `[W, W]` and `B_h` repeated
-/// per plane `[C, H, H]`.
-struct BlurMatrices {
-    along_w: Tensor<2>,
-    along_h: Tensor<3>,
-}
-
-impl BlurMatrices {
-    fn new(dims: [usize; 3], like: &Tensor<3>) -> Self {
-        let [c, h, w] = dims;
-        let (device, dtype) = (like.device(), like.dtype());
-        let bh = blur_matrix(h);
-        let bh: Vec<f32> = (0..c).flat_map(|_| bh.iter().copied()).collect();
-        Self {
-            along_w: Tensor::<2>::from_data(TensorData::new(blur_matrix(w), [w, w]), &device)
-                .cast(dtype),
-            along_h: Tensor::<3>::from_data(TensorData::new(bh, [c, h, h]), &device).cast(dtype),
-        }
-    }
-}
-
-/// Separable Gaussian blur of `[C, H, W]` planes with zero padding, as two matrix products
-/// (along W: `X B_w^T`, and `B_w^T = B_w` because the window is symmetric; along H: `B_h X`
-/// per plane). On the CPU backend this is several times faster than a grouped convolution,
-/// forward and backward.
-fn blur(x: Tensor<3>, m: &BlurMatrices) -> Tensor<3> {
-    let [c, h, w] = x.dims();
-    let y = x
-        .reshape([c * h, w])
-        .matmul(m.along_w.clone())
-        .reshape([c, h, w]);
-    m.along_h.clone().matmul(y)
+/// SSIM's window: the normalised 11-tap Gaussian of sigma 1.5.
+fn window() -> BlurWindow {
+    BlurWindow::gaussian(WINDOW, SIGMA).expect("an odd, symmetric window")
 }
 
 /// `[H, W, C]` to `[C, H, W]` planes, contiguous.
@@ -81,16 +28,18 @@ fn planes(t: Tensor<3>) -> Tensor<3> {
     Tensor::cat(planes, 0)
 }
 
-/// The per-pixel SSIM map `[H, W]` (mean over channels) of two `[H, W, C]` images.
+/// The per-pixel SSIM map `[H, W]` (mean over channels) of two `[H, W, C]` images. The
+/// window's means are [`gtsr_render_kernels::blur_planes`] (a direct kernel on the CPU, matrix
+/// products elsewhere).
 pub fn ssim_map(a: Tensor<3>, b: Tensor<3>) -> Tensor<2> {
     let [h, w, _] = a.dims();
     let (a, b) = (planes(a), planes(b));
-    let m = BlurMatrices::new(a.dims(), &a);
-    let mu_a = blur(a.clone(), &m);
-    let mu_b = blur(b.clone(), &m);
-    let s_aa = blur(a.clone() * a.clone(), &m) - mu_a.clone() * mu_a.clone();
-    let s_bb = blur(b.clone() * b.clone(), &m) - mu_b.clone() * mu_b.clone();
-    let s_ab = blur(a * b, &m) - mu_a.clone() * mu_b.clone();
+    let m = window();
+    let mu_a = blur_planes(a.clone(), &m);
+    let mu_b = blur_planes(b.clone(), &m);
+    let s_aa = blur_planes(a.clone() * a.clone(), &m) - mu_a.clone() * mu_a.clone();
+    let s_bb = blur_planes(b.clone() * b.clone(), &m) - mu_b.clone() * mu_b.clone();
+    let s_ab = blur_planes(a * b, &m) - mu_a.clone() * mu_b.clone();
     let num = (mu_a.clone() * mu_b.clone() * 2.0 + C1) * (s_ab * 2.0 + C2);
     let den = (mu_a.clone() * mu_a + mu_b.clone() * mu_b + C1) * (s_aa + s_bb + C2);
     (num / den).mean_dim(0).reshape([h, w])
