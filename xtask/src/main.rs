@@ -43,8 +43,15 @@ enum Cmd {
     ShadingStereo(shading::ShadingStereoArgs),
 }
 
-fn main() -> anyhow::Result<()> {
-    match Cli::parse().command {
+fn main() {
+    if let Err(e) = run(Cli::parse().command) {
+        eprintln!("xtask: error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run(command: Cmd) -> anyhow::Result<()> {
+    match command {
         Cmd::Stability => stability::run(),
         Cmd::GenScene(args) => gen_scene::run(&args),
         Cmd::BenchRecon(args) => bench_recon::run(&args),
