@@ -120,7 +120,7 @@ pub enum NdArraySplatState {
     F64(Arc<NdArraySplatSaved<f64>>),
 }
 
-fn read_host<F: Real>(t: &NdArrayTensor) -> Vec<F> {
+pub(crate) fn read_host<F: Real>(t: &NdArrayTensor) -> Vec<F> {
     match t {
         NdArrayTensor::F32(s) => {
             let v = s.view();
@@ -143,11 +143,11 @@ fn read_host<F: Real>(t: &NdArrayTensor) -> Vec<F> {
     }
 }
 
-fn is_f64(t: &NdArrayTensor) -> bool {
+pub(crate) fn is_f64(t: &NdArrayTensor) -> bool {
     matches!(t, NdArrayTensor::F64(_))
 }
 
-fn to_nd<F: Real + burn::tensor::Element>(v: Vec<F>, shape: &[usize]) -> NdArrayTensor {
+pub(crate) fn to_nd<F: Real + burn::tensor::Element>(v: Vec<F>, shape: &[usize]) -> NdArrayTensor {
     NdArrayTensor::from_data(TensorData::new(v, shape.to_vec()))
 }
 

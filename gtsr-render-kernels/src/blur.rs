@@ -21,6 +21,9 @@ use burn_autodiff::{
 use burn_ndarray::NdArrayTensor;
 use rayon::prelude::*;
 
+use crate::backend::{is_f64, read_host, to_nd};
+use crate::scalar::Real;
+
 /// A symmetric blur window of odd length.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BlurWindow {
@@ -96,30 +99,22 @@ pub trait BlurBackend: Backend {
 
 impl BlurBackend for NdArray {
     fn blur_planes(x: FloatTensor<Self>, window: BlurWindow) -> FloatTensor<Self> {
-        match &x {
-            NdArrayTensor::F64(s) => {
-                let shape = s.view().shape().to_vec();
-                let v: Vec<f64> = s.view().iter().copied().collect();
-                let w: Vec<f64> = window.weights.iter().map(|&w| f64::from(w)).collect();
-                let out = blur_host(&v, &shape, &w);
-                NdArrayTensor::from_data(TensorData::new(out, shape))
-            }
-            NdArrayTensor::F32(s) => {
-                let shape = s.view().shape().to_vec();
-                let view = s.view();
-                let v: Vec<f32> = match view.as_slice() {
-                    Some(sl) => sl.to_vec(),
-                    None => view.iter().copied().collect(),
-                };
-                let out = blur_host(&v, &shape, &window.weights);
-                NdArrayTensor::from_data(TensorData::new(out, shape))
-            }
-            other => panic!(
-                "gtsr-render-kernels: blur_planes takes f32 or f64, got {:?}",
-                burn::backend::TensorMetadata::dtype(other)
-            ),
+        if is_f64(&x) {
+            nd_blur::<f64>(&x, &window)
+        } else {
+            nd_blur::<f32>(&x, &window)
         }
     }
+}
+
+/// [`blur_host`] on an NdArray tensor, in `F`.
+fn nd_blur<F: Real + burn::tensor::Element>(
+    x: &NdArrayTensor,
+    window: &BlurWindow,
+) -> NdArrayTensor {
+    let shape = burn::backend::TensorMetadata::shape(x).to_vec();
+    let w: Vec<F> = window.weights.iter().map(|&w| F::c(f64::from(w))).collect();
+    to_nd(blur_host(&read_host::<F>(x), &shape, &w), &shape)
 }
 
 #[derive(Debug)]
@@ -150,10 +145,7 @@ impl<B: BlurBackend, C: CheckpointStrategy> BlurBackend for Autodiff<B, C> {
 }
 
 /// The blur of `[C, H, W]` planes (row-major `x`) with `w` along W, then along H.
-pub(crate) fn blur_host<F>(x: &[F], shape: &[usize], w: &[F]) -> Vec<F>
-where
-    F: num_traits::Float + Send + Sync,
-{
+pub(crate) fn blur_host<F: Real>(x: &[F], shape: &[usize], w: &[F]) -> Vec<F> {
     let [c, h, wd] = [shape[0], shape[1], shape[2]];
     assert_eq!(x.len(), c * h * wd, "blur_planes: data and shape disagree");
     let r = w.len() / 2;
