@@ -19,10 +19,15 @@ const CLASSES: [&str; 3] = [
     "elsewhere on the object (truth within half a footprint of the masks)",
 ];
 
+/// The transmittances of [`report`]'s light column: the share of pixels where the surface set
+/// lets at least this much of the ray through to the gap's depth.
+const LIGHT_LEFT: [f64; 3] = [0.5, 0.1, 0.01];
+
 /// Per class: pixels, and sums of the image's mean channel, the C_SH and C_PBR absolute
 /// residuals and the signed C_SH one (render minus image; mean over channels), the run's depth
-/// and the truth's behind the masks' depth (footprints), and the pixels where the run's depth
-/// lies beyond the gap.
+/// and the truth's behind the masks' depth (footprints), the pixels where the run's depth
+/// lies beyond the gap, and per [`LIGHT_LEFT`] threshold the pixels whose surface set still
+/// lets that much light through at the gap.
 #[derive(Clone, Copy, Default)]
 struct ClassSums {
     pixels: usize,
@@ -33,6 +38,8 @@ struct ClassSums {
     model_gap: f64,
     model_beyond: usize,
     truth_gap: f64,
+    light_left: [usize; LIGHT_LEFT.len()],
+    light_pixels: usize,
 }
 
 /// The concavity report of `diagnose-surface --concavity-gap`: on every training view,
@@ -134,6 +141,19 @@ pub(crate) fn report(
             });
             Some(if near { 1 } else { 2 })
         };
+        // The depth at which the surface set's transmittance falls to each threshold, on the
+        // views with a pixel into a concavity (a miss: the light never falls that far).
+        let crossings = if (0..w * h).any(|p| class_of(p) == Some(0)) {
+            LIGHT_LEFT
+                .iter()
+                .map(|t| {
+                    let g = model.render_depth_crossing(&v.camera, &v.rays, *t)?;
+                    Ok((host_vec(g.depth), host_vec(g.coverage)))
+                })
+                .collect::<Result<Vec<_>>>()?
+        } else {
+            Vec::new()
+        };
         for p in 0..w * h {
             let Some(c) = class_of(p) else { continue };
             let s = &mut sums[c];
@@ -156,6 +176,11 @@ pub(crate) fn report(
             s.model_gap += model_gap as f64;
             s.model_beyond += usize::from(model_gap > gap);
             s.truth_gap += gap_fp(p) as f64;
+            s.light_pixels += usize::from(!crossings.is_empty());
+            for (k, (d, found)) in crossings.iter().enumerate() {
+                let beyond = (d[p] - hull[p]) * fx / hull[p] > gap;
+                s.light_left[k] += usize::from(found[p] < 0.5 || !d[p].is_finite() || beyond);
+            }
         }
         if !anchors.is_empty() {
             let flat = |n: Vec<Vec3>| -> Vec<f32> { n.iter().flat_map(|n| n.to_array()).collect() };
@@ -179,16 +204,23 @@ pub(crate) fn report(
          ({} views); the truth more than {gap} footprints behind the masks' depth. Means per \
          pixel: the image (mean channel), the run's absolute residuals and its signed C_SH one \
          (render minus image), the run's depth and the truth behind the masks' depth, in \
-         footprints, and the share of pixels where the run's depth lies beyond the gap.\n\n\
+         footprints, the share of pixels where the run's depth lies beyond the gap, and (on the \
+         views with a pixel into a concavity) the share where the surface set lets at least \
+         {} of the light through to the gap's depth.\n\n\
          | pixels | count | image | C_SH residual | C_PBR residual | C_SH signed | run's depth \
-         behind the masks | truth behind the masks | run beyond the gap |\n\
-         |---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
-        scene.train.len()
+         behind the masks | truth behind the masks | run beyond the gap | light past the gap \
+         |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
+        scene.train.len(),
+        LIGHT_LEFT.map(|t| t.to_string()).join(" / ")
     );
     for (name, s) in CLASSES.iter().zip(&sums) {
         let n = s.pixels.max(1) as f64;
+        let light = s
+            .light_left
+            .map(|k| format!("{:.1} %", 100.0 * k as f64 / s.light_pixels.max(1) as f64))
+            .join(" / ");
         md.push_str(&format!(
-            "| {name} | {} | {:.4} | {:.4} | {:.4} | {:+.4} | {:+.2} | {:+.2} | {:.1} % |\n",
+            "| {name} | {} | {:.4} | {:.4} | {:.4} | {:+.4} | {:+.2} | {:+.2} | {:.1} % | {} |\n",
             s.pixels,
             s.image / n,
             s.res_sh / n,
@@ -196,7 +228,8 @@ pub(crate) fn report(
             s.signed_sh / n,
             s.model_gap / n,
             s.truth_gap / n,
-            100.0 * s.model_beyond as f64 / n
+            100.0 * s.model_beyond as f64 / n,
+            light
         ));
     }
     md.push_str(&format!(
