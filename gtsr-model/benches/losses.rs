@@ -7,7 +7,11 @@
 // Device::ndarray is deprecated upstream; NdArray stays the CPU and CI backend.
 #![allow(deprecated)]
 
-use std::time::{Duration, Instant};
+mod common;
+
+use std::time::Instant;
+
+use common::{WARM_UP, median_after_warm_up};
 
 use burn::tensor::{Device, Tensor, TensorData};
 use gtsr_model::losses;
@@ -19,11 +23,6 @@ fn image(side: usize, rng: &mut StdRng, device: &Device) -> Tensor<3> {
         .map(|_| rng.random_range(0.0..1.0))
         .collect();
     Tensor::<3>::from_data(TensorData::new(v, [side, side, 3]), device)
-}
-
-fn median(mut t: Vec<Duration>) -> Duration {
-    t.sort();
-    t[t.len() / 2]
 }
 
 fn main() {
@@ -42,7 +41,7 @@ fn main() {
         let target = image(side, &mut rng, &device);
         let mut fwd = Vec::new();
         let mut both = Vec::new();
-        for _ in 0..reps + 2 {
+        for _ in 0..reps + WARM_UP {
             let render = image(side, &mut rng, &device).require_grad();
             let t0 = Instant::now();
             let loss = losses::photometric(render.clone(), target.clone(), 0.8);
@@ -55,8 +54,7 @@ fn main() {
             fwd.push(t1 - t0);
             both.push(t2 - t0);
         }
-        // The first two repetitions warm the allocator and the thread pool.
-        let (fwd, both) = (median(fwd[2..].to_vec()), median(both[2..].to_vec()));
+        let (fwd, both) = (median_after_warm_up(&fwd), median_after_warm_up(&both));
         println!(
             "| {side}x{side} | {:.2} | {:.2} |",
             fwd.as_secs_f64() * 1e3,

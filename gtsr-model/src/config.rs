@@ -920,6 +920,9 @@ impl TrainConfig {
         if self.densify.every == 0 {
             bad.push("densify.every must be positive".into());
         }
+        if self.multi_view_every == 0 {
+            bad.push("multi_view_every must be at least 1 (1: every step)".into());
+        }
         let t = self.densify.trim_transmittance;
         if !(t > 0.0 && t < 1.0) {
             bad.push(format!(

@@ -362,7 +362,8 @@ impl Model {
             sh::colours(
                 set.req(ParamKind::ShDc),
                 set.get(ParamKind::ShRest),
-                &view_dirs(&means, centre),
+                &means,
+                centre,
                 self.sh_degree,
             )
         });

@@ -688,7 +688,7 @@ impl Trainer {
                         * l2,
                 );
             }
-            let every = cfg.multi_view_every.max(1);
+            let every = cfg.multi_view_every;
             if c.multi_view && !self.neighbours[vi].is_empty() && step.is_multiple_of(every) {
                 let mut rng = step_rng(cfg.seed, step, RNG_NEIGHBOUR);
                 let list = &self.neighbours[vi];

@@ -143,6 +143,20 @@ pub(crate) fn read_host<F: Real>(t: &NdArrayTensor) -> Vec<F> {
     }
 }
 
+/// The tensor's data as `&[F]` without a copy where it is contiguous, in standard order and of
+/// precision `F`; otherwise converted ([`read_host`]).
+pub(crate) fn host_slice<F: Real>(t: &NdArrayTensor) -> std::borrow::Cow<'_, [F]> {
+    let borrowed = match t {
+        NdArrayTensor::F32(s) => s.view().to_slice().and_then(F::slice_from_f32),
+        NdArrayTensor::F64(s) => s.view().to_slice().and_then(F::slice_from_f64),
+        _ => None,
+    };
+    match borrowed {
+        Some(b) => std::borrow::Cow::Borrowed(b),
+        None => std::borrow::Cow::Owned(read_host(t)),
+    }
+}
+
 pub(crate) fn is_f64(t: &NdArrayTensor) -> bool {
     matches!(t, NdArrayTensor::F64(_))
 }

@@ -3,7 +3,9 @@
 //! This crate knows Gaussians, cameras and pixels, nothing of any paper. Its backend
 //! extension [`backend::SplatBackend`] splats `N` Gaussians with `C` feature channels into an
 //! image, with its backward pass; a second, [`blur::BlurBackend`], blurs image planes with a
-//! separable window (SSIM's Gaussian) on the CPU ([`blur_planes`]). Use the splats through
+//! separable window (SSIM's Gaussian) on the CPU ([`blur_planes`]), and a third,
+//! [`sh::ShBackend`], evaluates spherical-harmonic colours in each Gaussian's view direction
+//! ([`sh::sh_colours`]). Use the splats through
 //! [`render`]:
 //!
 //! - inputs are ordinary Burn tensors (see [`SplatInputs`]); on an autodiff device the image
@@ -49,6 +51,7 @@ pub mod cpu;
 pub mod gpu;
 pub mod reference;
 pub mod scalar;
+pub mod sh;
 
 pub use antialias::blur_compensation;
 pub use api::{

@@ -13,6 +13,10 @@ pub trait Real: num_traits::Float + Send + Sync + Debug + Default + 'static {
     fn slice_as_f32(s: &[Self]) -> Option<&[f32]>;
     /// [`Real::slice_as_f32`] for a mutable slice.
     fn slice_as_f32_mut(s: &mut [Self]) -> Option<&mut [f32]>;
+    /// An `f32` slice as `&[Self]` when `Self` is `f32` (borrows a tensor's data), else `None`.
+    fn slice_from_f32(s: &[f32]) -> Option<&[Self]>;
+    /// An `f64` slice as `&[Self]` when `Self` is `f64`, else `None`.
+    fn slice_from_f64(s: &[f64]) -> Option<&[Self]>;
 }
 
 impl Real for f32 {
@@ -32,6 +36,14 @@ impl Real for f32 {
     fn slice_as_f32_mut(s: &mut [Self]) -> Option<&mut [f32]> {
         Some(s)
     }
+    #[inline(always)]
+    fn slice_from_f32(s: &[f32]) -> Option<&[Self]> {
+        Some(s)
+    }
+    #[inline(always)]
+    fn slice_from_f64(_: &[f64]) -> Option<&[Self]> {
+        None
+    }
 }
 
 impl Real for f64 {
@@ -50,5 +62,13 @@ impl Real for f64 {
     #[inline(always)]
     fn slice_as_f32_mut(_: &mut [Self]) -> Option<&mut [f32]> {
         None
+    }
+    #[inline(always)]
+    fn slice_from_f32(_: &[f32]) -> Option<&[Self]> {
+        None
+    }
+    #[inline(always)]
+    fn slice_from_f64(s: &[f64]) -> Option<&[Self]> {
+        Some(s)
     }
 }

@@ -872,10 +872,12 @@ fn sh_colours_match_the_host_basis() {
     let rest: Vec<f32> = (0..n * 45).map(|_| rng.random_range(-0.5..0.5)).collect();
     let t = |v: &Vec<f32>, w| Tensor::<2>::from_data(TensorData::new(v.clone(), [n, w]), &device);
     for degree in 0..=3u32 {
+        // Unit means seen from the origin: the directions are the means.
         let got = host_vec(sh::colours(
             &t(&dc, 3),
             Some(&t(&rest, 45)),
             &t(&dirs, 3),
+            [0.0; 3],
             degree,
         ));
         for i in 0..n {

@@ -214,11 +214,13 @@ fn bad_views_and_configs_are_refused_with_reasons() {
     cfg.weights.multi_view = f64::NAN;
     cfg.weights.spread = -1.0;
     cfg.weights.lambda_l1 = 1.5;
+    cfg.multi_view_every = 0;
     let e = cfg.validate().unwrap_err();
     assert!(
         e.contains("weights.multi_view")
             && e.contains("weights.spread")
-            && e.contains("weights.lambda_l1 must be in [0, 1]"),
+            && e.contains("weights.lambda_l1 must be in [0, 1]")
+            && e.contains("multi_view_every must be at least 1"),
         "{e}"
     );
     let mut comps = Preset::NoPbr.components().unwrap();
