@@ -98,17 +98,6 @@ pub fn dir_to_camera(dirs: &Tensor<2>, camera: &Camera) -> Tensor<2> {
     dirs.clone().matmul(r.transpose())
 }
 
-/// Unit rows.
-pub fn normalize_rows(v: Tensor<2>) -> Tensor<2> {
-    let len = v
-        .clone()
-        .powf_scalar(2.0)
-        .sum_dim(1)
-        .clamp_min(1e-24)
-        .sqrt();
-    v / len
-}
-
 /// `[N, 3]` one-hot rows marking each Gaussian's normal axis, that of its smallest scale
 /// (decided on the detached `log_scales`; in their dtype).
 pub fn normal_axis(log_scales: &Tensor<2>) -> Tensor<2> {
@@ -145,14 +134,10 @@ pub fn facing_normals(
     normal * sign
 }
 
-/// Unit directions `[N, 3]` from the camera centre to each mean.
+/// Unit directions `[N, 3]` from the camera centre to each mean, as the SH colours take them
+/// ([`gtsr_render_kernels::sh::view_directions`]).
 pub fn view_dirs(means: &Tensor<2>, centre: [f64; 3]) -> Tensor<2> {
-    let c = Tensor::<2>::from_data(
-        TensorData::new(centre.map(|v| v as f32).to_vec(), [1, 3]),
-        &means.device(),
-    )
-    .cast(means.dtype());
-    normalize_rows(means.clone() - c)
+    gtsr_render_kernels::sh::view_directions(means.clone(), centre)
 }
 
 /// The `[H, W, 3]` camera-space rays `((u - cx) / fx, (v - cy) / fy, 1)` through pixel centres.

@@ -548,6 +548,24 @@ pub fn dc_colours(dc: Tensor<2>) -> Tensor<2> {
     (dc * C0 + 0.5).clamp_min(0.0)
 }
 
+/// The unit directions `[N, 3]` from `centre` to each of `means` `[N, 3]` in Burn tensor ops,
+/// the squared lengths clamped at `1e-24` (a mean on the centre gives a zero direction), as
+/// [`sh_colours`] takes them.
+pub fn view_directions(means: Tensor<2>, centre: [f64; 3]) -> Tensor<2> {
+    let centre = Tensor::<2>::from_data(
+        TensorData::new(centre.to_vec(), [1, 3]),
+        (&means.device(), means.dtype()),
+    );
+    let v = means - centre;
+    let len = v
+        .clone()
+        .powf_scalar(2.0)
+        .sum_dim(1)
+        .clamp_min(1e-24)
+        .sqrt();
+    v / len
+}
+
 /// [`sh_colours`] in Burn tensor ops (any backend).
 pub fn sh_colours_by_tensor_ops(
     dc: Tensor<2>,
@@ -568,18 +586,7 @@ pub fn sh_colours_by_tensor_ops(
     );
     let n = dc.dims()[0];
     let (device, dtype) = (dc.device(), dc.dtype());
-    let centre = Tensor::<2>::from_data(
-        TensorData::new(view.centre.to_vec(), [1, 3]),
-        (&device, dtype),
-    );
-    let v = means - centre;
-    let len = v
-        .clone()
-        .powf_scalar(2.0)
-        .sum_dim(1)
-        .clamp_min(1e-24)
-        .sqrt();
-    let d = v / len;
+    let d = view_directions(means, view.centre);
     // Columns as products with unit vectors (contiguous on every backend), each basis function
     // a contiguous row of a [used, N] stack.
     let col = |j: usize| {
