@@ -21,7 +21,7 @@ use burn_autodiff::{
 use burn_ndarray::NdArrayTensor;
 use rayon::prelude::*;
 
-use crate::backend::{is_f64, read_host, to_nd};
+use crate::backend::{host_slice, is_f64, to_nd};
 use crate::scalar::Real;
 
 /// A symmetric blur window of odd length.
@@ -114,7 +114,7 @@ fn nd_blur<F: Real + burn::tensor::Element>(
 ) -> NdArrayTensor {
     let shape = burn::backend::TensorMetadata::shape(x).to_vec();
     let w: Vec<F> = window.weights.iter().map(|&w| F::c(f64::from(w))).collect();
-    to_nd(blur_host(&read_host::<F>(x), &shape, &w), &shape)
+    to_nd(blur_host(&host_slice::<F>(x), &shape, &w), &shape)
 }
 
 #[derive(Debug)]

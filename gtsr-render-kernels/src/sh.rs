@@ -361,6 +361,9 @@ fn raw_colour<F: Real>(dc: &[F], rest: &[F], b: &[F; 15], used: usize) -> [F; 3]
     out
 }
 
+/// The rest coefficients per channel that `view.degree` uses, for the kernel and the tensor
+/// ops alike; panics when the degree exceeds [`MAX_DEGREE`] or `rest` holds fewer (`m` per
+/// channel).
 fn check_degree(view: ShView, m: usize) -> usize {
     assert!(
         view.degree <= MAX_DEGREE,
@@ -528,9 +531,7 @@ pub fn sh_colours(
     let float = matches!(dc.dtype(), DType::F32 | DType::F64);
     let rest = match rest {
         Some(r) if view.degree > 0 => r,
-        _ => {
-            return dc_colours(dc);
-        }
+        _ => return dc_colours(dc),
     };
     if float && has_sh_op(&device) && [rest.dtype(), means.dtype()] == [dc.dtype(); 2] {
         return Tensor::from_dispatch(<Dispatch as ShBackend>::sh_colours(
@@ -578,12 +579,7 @@ pub fn sh_colours_by_tensor_ops(
         _ => return dc_colours(dc),
     };
     let m = rest.dims()[1] / 3;
-    let used = coeffs(view.degree.min(MAX_DEGREE)) - 1;
-    assert!(
-        view.degree <= MAX_DEGREE && m >= used,
-        "sh_colours: degree {} needs {used} rest coefficients per channel, got {m}",
-        view.degree
-    );
+    let used = check_degree(view, m);
     let n = dc.dims()[0];
     let (device, dtype) = (dc.device(), dc.dtype());
     let d = view_directions(means, view.centre);
