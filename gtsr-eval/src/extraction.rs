@@ -25,7 +25,9 @@ use crate::mesh::face_centroid;
 use crate::mesh::largest_component;
 use crate::metrics::SignedDistance;
 use crate::refine::{debiased_depth_targets, observed_offsets};
-use crate::shading::{ShadingImage, ShadingRefinement, ShadingSettings, refine_by_shading};
+use crate::shading::{
+    NormalPrior, ShadingImage, ShadingRefinement, ShadingSettings, refine_by_shading,
+};
 use crate::tsdf::{
     TsdfVolume, default_truncation, default_voxel_for_radius, drop_depth_edges, faces_ray,
     median_pixel_footprint, snap_to_hull,
@@ -191,6 +193,12 @@ pub struct MeshConfig {
     /// [`MeshConfig::shading_depth_threshold`]), over this many footprints (0: off).
     #[arg(skip)]
     pub shading_depth: f32,
+    /// Carving, with the shading refinement: the share in `[0, 1]` of each face's target
+    /// normal taken from the fusion views' rendered normal maps
+    /// ([`crate::shading::NormalPrior`]), the rest from the images' shading (0: the shading's
+    /// alone).
+    #[arg(skip)]
+    pub shading_normals_rendered: f32,
     /// With [`MeshConfig::shading_depth`]: the depth's offsets are trusted inward beyond this
     /// many footprints; the faces within it are asked to stay.
     #[arg(skip = DEFAULT_SHADING_DEPTH_THRESHOLD)]
@@ -324,6 +332,7 @@ impl Default for MeshConfig {
             carve_debias: true,
             shading_anchor: DEFAULT_SHADING_ANCHOR,
             shading_depth: 0.0,
+            shading_normals_rendered: 0.0,
             shading_depth_threshold: DEFAULT_SHADING_DEPTH_THRESHOLD,
             shading_shrink: true,
             shading_slack: DEFAULT_SHADING_SLACK,
@@ -449,6 +458,12 @@ impl MeshConfig {
                     "mesh.{name} must be a finite number of footprints >= 0, got {v}"
                 ));
             }
+        }
+        if !(0.0..=1.0).contains(&self.shading_normals_rendered) {
+            return bad(format!(
+                "mesh.shading_normals_rendered must be a share in [0, 1], got {}",
+                self.shading_normals_rendered
+            ));
         }
         if self.shading_rounds == 0 {
             return bad("mesh.shading_rounds must be at least 1".into());
@@ -655,6 +670,9 @@ pub struct FusionView<'a> {
     pub depth: &'a [f32],
     /// Mask in `[0, 1]`.
     pub mask: &'a [f32],
+    /// Camera-space normals, 3 per pixel (zero where nothing was rendered; premultiplied
+    /// normals do), for [`MeshConfig::shading_normals_rendered`]; may be empty otherwise.
+    pub normal: &'a [f32],
 }
 
 /// Everything [`extract_mesh`] reads besides the settings.
@@ -767,6 +785,17 @@ fn depth_maps<'a>(
 /// is on; then marching cubes and the largest connected component.
 pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMesh, Vec<String>)> {
     config.validate()?;
+    if config.shading_normals_rendered > 0.0
+        && let Some(v) = (inputs.views.iter()).find(|v| v.normal.len() != 3 * v.mask.len())
+    {
+        return Err(EvalError::InvalidArgument(format!(
+            "mesh.shading_normals_rendered needs a normal map on every fusion view (a {}x{} \
+             view has {} values)",
+            v.camera.width,
+            v.camera.height,
+            v.normal.len()
+        )));
+    }
     let mut notes = Vec::new();
     let (lo, hi) = inputs.bounds;
     if config.fusion == Fusion::Carve
@@ -822,7 +851,15 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
                 length: config.shading_depth,
                 threshold: config.shading_depth_threshold,
             });
-            mesh = shading_refined(mesh, masks, radiance, depth, config, &mut notes)?;
+            let share = config.shading_normals_rendered;
+            let rendered: Vec<(&Camera, &[f32])> = (inputs.views.iter())
+                .map(|v| (v.camera, v.normal))
+                .collect();
+            let prior = (share > 0.0).then_some(NormalPrior {
+                views: &rendered,
+                share,
+            });
+            mesh = shading_refined(mesh, masks, radiance, depth, prior, config, &mut notes)?;
         }
         return Ok((mesh, notes));
     }
@@ -1072,6 +1109,7 @@ fn shading_refined(
     masks: &MasksAlone,
     radiance: &[Vec<f32>],
     depth: Option<DepthFrom<'_>>,
+    prior: Option<NormalPrior<'_>>,
     config: &MeshConfig,
     notes: &mut Vec<String>,
 ) -> Result<TriMesh> {
@@ -1146,7 +1184,13 @@ fn shading_refined(
         }
         None => None,
     };
-    let refined = refine_by_shading(&mesh, &images, targets.as_ref(), &settings)?;
+    let refined = refine_by_shading(&mesh, &images, targets.as_ref(), prior, &settings)?;
+    if let Some(p) = prior {
+        notes.push(format!(
+            "shading refinement: {:.0} % of each face's normal from the rendered normal maps",
+            100.0 * p.share
+        ));
+    }
     let moved = refined.moves.iter().map(|d| f64::from(*d)).sum::<f64>()
         / refined.moves.len().max(1) as f64;
     if let Some(s) = &refined.slack
@@ -1448,11 +1492,21 @@ mod tests {
         maps: &[Vec<f32>],
         config: &MeshConfig,
     ) -> (TriMesh, Vec<String>) {
+        sphere_try_extract(masks, maps, config).unwrap()
+    }
+
+    /// [`sphere_extract`], its error returned.
+    fn sphere_try_extract(
+        masks: &MasksAlone,
+        maps: &[Vec<f32>],
+        config: &MeshConfig,
+    ) -> Result<(TriMesh, Vec<String>)> {
         let views: Vec<FusionView<'_>> = (masks.views.iter().zip(maps))
             .map(|((camera, mask), depth)| FusionView {
                 camera,
                 depth,
                 mask,
+                normal: &[],
             })
             .collect();
         let cameras: Vec<Camera> = masks.views.iter().map(|(c, _)| *c).collect();
@@ -1464,7 +1518,36 @@ mod tests {
             bounds: (Vec3::splat(-1.2), Vec3::splat(1.2)),
             coarse: false,
         };
-        extract_mesh(config, &inputs).unwrap()
+        extract_mesh(config, &inputs)
+    }
+
+    /// Blending in the rendered normals needs a normal map on every view, and a share in
+    /// [0, 1].
+    #[test]
+    fn rendered_normals_need_maps_and_a_share() {
+        let masks = MasksAlone::new(sphere_masks(8, 16, 0.8))
+            .unwrap()
+            .expect("a sphere");
+        let maps = vec![Vec::new(); masks.views.len()];
+        let config = MeshConfig {
+            shading_normals_rendered: 0.5,
+            ..MeshConfig::default()
+        };
+        let err = sphere_try_extract(&masks, &maps, &config)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("shading_normals_rendered") && err.contains("normal map"),
+            "{err}"
+        );
+        for share in [-0.5, 1.5, f32::NAN] {
+            let config = MeshConfig {
+                shading_normals_rendered: share,
+                ..MeshConfig::default()
+            };
+            let err = config.validate().unwrap_err().to_string();
+            assert!(err.contains("shading_normals_rendered"), "{err}");
+        }
     }
 
     /// Low-resolution coverage masks of a sphere: the cones of the coverage interpolated

@@ -28,7 +28,10 @@ use gtsr_data::ply::TriMesh;
 
 use crate::error::{EvalError, Result};
 use crate::mesh::{face_centroid, face_normal_scaled};
-use crate::refine::{DepthTargets, FaceNormals, RefineSettings, refine_anchored, visible_faces};
+use crate::refine::{
+    DepthTargets, FaceNormals, NormalView, RefineSettings, observed_normals, refine_anchored,
+    visible_faces,
+};
 
 /// One view for [`shading_normals`].
 pub struct ShadingView<'a> {
@@ -809,18 +812,57 @@ pub struct ShadingRefined {
     pub round_changes: Vec<f32>,
 }
 
+/// Normal maps that share each face's target normal with the shading's in
+/// [`refine_by_shading`] (a trained model's rendered normals, say).
+#[derive(Clone, Copy)]
+pub struct NormalPrior<'a> {
+    /// One camera and its camera-space normal map (3 per pixel, zero where nothing was
+    /// rendered) per view.
+    pub views: &'a [(&'a Camera, &'a [f32])],
+    /// The share in `[0, 1]` of each face's target taken from these maps where they observe
+    /// it ([`crate::refine::observed_normals`]); the rest is the shading's.
+    pub share: f32,
+}
+
+/// Per face, `(1 - share) a + share b` of the two weighted normals, renormalised, with the
+/// weights mixed alike; a face only one of them observes keeps that one's at its share.
+pub fn blend_face_normals(a: &FaceNormals, b: &FaceNormals, share: f32) -> FaceNormals {
+    let mut out = FaceNormals {
+        normal: Vec::with_capacity(a.normal.len()),
+        weight: Vec::with_capacity(a.normal.len()),
+    };
+    for f in 0..a.normal.len() {
+        let (wa, wb) = ((1.0 - share) * a.weight[f], share * b.weight[f]);
+        let m = wa * a.normal[f] + wb * b.normal[f];
+        let n = m.normalize_or_zero();
+        out.normal.push(n);
+        out.weight.push(if n == Vec3::ZERO { 0.0 } else { wa + wb });
+    }
+    out
+}
+
 /// Refines `mesh` (a mesh around the object, such as the masks') by the normals its faces'
 /// shading explains in `images` ([`shading_normals`], with the light the rest of the object
 /// sends each face when `settings.shading.interreflection` is set): the vertices move along
 /// their normals so that the faces' normals follow the shading's ([`crate::refine`]), within
 /// `settings.anchor` of where they were, and, with `depth`, each face's mean displacement
-/// pulled towards an observed offset ([`crate::refine::refine`]).
+/// pulled towards an observed offset ([`crate::refine::refine`]). With `prior`, each face's
+/// target is the shading's normal blended with the prior's maps' ([`blend_face_normals`]).
 pub fn refine_by_shading(
     mesh: &TriMesh,
     images: &[ShadingImage<'_>],
     depth: Option<&DepthTargets>,
+    prior: Option<NormalPrior<'_>>,
     settings: &ShadingRefinement,
 ) -> Result<ShadingRefined> {
+    if let Some(p) = prior
+        && !(p.share.is_finite() && (0.0..=1.0).contains(&p.share))
+    {
+        return Err(EvalError::InvalidArgument(format!(
+            "shading refinement: the prior normals' share must lie in [0, 1], got {}",
+            p.share
+        )));
+    }
     let valid = settings.anchor.is_finite()
         && settings.anchor > 0.0
         && settings.max_outward.is_finite()
@@ -892,13 +934,27 @@ pub fn refine_by_shading(
             .interreflection
             .then(|| surroundings_cast(on, &caster, settings.surrounding_rays));
         let fit = shading_normals(on, &views, around.as_ref(), &settings.shading)?;
-        let (refined, moves) = refine_anchored(
-            mesh,
-            &fit.normals,
-            depth,
-            &refine_settings,
-            scale.as_deref(),
-        )?;
+        let targets = match prior {
+            Some(p) => {
+                let maps: Vec<Vec<f32>> = p
+                    .views
+                    .iter()
+                    .map(|(c, _)| caster.render(c).depth)
+                    .collect();
+                let nv: Vec<NormalView<'_>> = (p.views.iter().zip(&maps))
+                    .map(|((camera, normal), mesh_depth)| NormalView {
+                        camera,
+                        normal,
+                        mesh_depth,
+                    })
+                    .collect();
+                let seen = observed_normals(on, &nv, 1, settings.shading.min_cos)?;
+                blend_face_normals(&fit.normals, &seen, p.share)
+            }
+            None => fit.normals.clone(),
+        };
+        let (refined, moves) =
+            refine_anchored(mesh, &targets, depth, &refine_settings, scale.as_deref())?;
         Ok((refined, moves, fit))
     };
     let (mut refined, mut moves, mut fit) = round(mesh)?;
@@ -1271,6 +1327,16 @@ mod tests {
     /// of 24 cameras, 96 px), each pixel's radiance scaled by `1 + noise u` with `u` uniform
     /// in `[-1, 1)` (seeded).
     fn refine_lid_over_bowl(noise: f32, settings: &ShadingRefinement) -> (TriMesh, ShadingRefined) {
+        refine_lid_over_bowl_with_prior(noise, settings, None)
+    }
+
+    /// [`refine_lid_over_bowl`], with the lid's own (flat) normals rendered in every view as a
+    /// [`NormalPrior`] of this share.
+    fn refine_lid_over_bowl_with_prior(
+        noise: f32,
+        settings: &ShadingRefinement,
+        prior_share: Option<f32>,
+    ) -> (TriMesh, ShadingRefined) {
         let truth = height_grid(48, bowl);
         let lid = height_grid(24, |_, _| 0.0);
         let cams: Vec<Camera> = (0..24)
@@ -1306,8 +1372,99 @@ mod tests {
                 mask: None,
             })
             .collect();
-        let refined = refine_by_shading(&lid, &images, None, settings).unwrap();
+        let lid_caster = crate::MeshRaycaster::new(&lid, "the lid").unwrap();
+        let flat: Vec<Vec<f32>> = (cams.iter())
+            .map(|c| {
+                let n = c.world_to_camera.transform_vector3(Vec3::Z);
+                (0..96 * 96u32)
+                    .flat_map(|p| {
+                        let (o, d) = c.pixel_ray(p % 96, p / 96);
+                        let hit = lid_caster.first_hit(o, d).is_some();
+                        if hit { n.to_array() } else { [0.0; 3] }
+                    })
+                    .collect()
+            })
+            .collect();
+        let maps: Vec<(&Camera, &[f32])> =
+            cams.iter().zip(&flat).map(|(c, n)| (c, &n[..])).collect();
+        let prior = prior_share.map(|share| NormalPrior {
+            views: &maps,
+            share,
+        });
+        let refined = refine_by_shading(&lid, &images, None, prior, settings).unwrap();
         (lid, refined)
+    }
+
+    /// The lid's own flat normals as a prior hold it: at share 1 the bowl's shading moves
+    /// nothing, at one half the centre sinks part of the way; a share outside [0, 1] is refused.
+    #[test]
+    fn a_prior_of_flat_normals_holds_the_lid_by_its_share() {
+        let settings = ShadingRefinement {
+            anchor: 0.5,
+            ..ShadingRefinement::default()
+        };
+        let centre = |r: &ShadingRefined, lid: &TriMesh| {
+            let k = (lid.positions.iter().enumerate())
+                .min_by(|a, b| a.1.length().total_cmp(&b.1.length()))
+                .map(|(k, _)| k)
+                .unwrap();
+            r.moves[k]
+        };
+        let (lid, none) = refine_lid_over_bowl_with_prior(0.0, &settings, None);
+        let (_, zero) = refine_lid_over_bowl_with_prior(0.0, &settings, Some(0.0));
+        let (_, half) = refine_lid_over_bowl_with_prior(0.0, &settings, Some(0.5));
+        let (_, all) = refine_lid_over_bowl_with_prior(0.0, &settings, Some(1.0));
+        let (d0, dz, dh, d1) = (
+            centre(&none, &lid),
+            centre(&zero, &lid),
+            centre(&half, &lid),
+            centre(&all, &lid),
+        );
+        assert!((d0 - dz).abs() < 1e-6, "share 0: {dz} against {d0}");
+        assert!(d0 < -0.5 * BOWL.0, "no prior: {d0}");
+        assert!(d1.abs() < 0.05 * BOWL.0, "share 1: {d1}");
+        assert!(
+            dh < 0.8 * d1 + 0.2 * d0 && dh > 0.9 * d0,
+            "share 0.5: {dh} ({d0} .. {d1})"
+        );
+        let cam = Camera::look_at(1.5 * Vec3::Z, Vec3::ZERO, Vec3::Y, 0.35, 8, 8);
+        let (rad, normal) = (vec![0.5f32; 64], vec![0.0f32; 192]);
+        let images = [ShadingImage {
+            camera: &cam,
+            radiance: &rad,
+            mask: None,
+        }];
+        let maps = [(&cam, &normal[..])];
+        for share in [-0.1, 1.5, f32::NAN] {
+            let prior = Some(NormalPrior {
+                views: &maps,
+                share,
+            });
+            let err = refine_by_shading(&square(), &images, None, prior, &settings).unwrap_err();
+            assert!(err.to_string().contains("share"), "{err}");
+        }
+    }
+
+    /// Half and half of two observed normals is their bisector; a face only one set observes
+    /// keeps that one's normal at its share of the weight.
+    #[test]
+    fn blended_face_normals_mix_by_the_share() {
+        let a = FaceNormals {
+            normal: vec![Vec3::X, Vec3::X, Vec3::ZERO],
+            weight: vec![1.0, 1.0, 0.0],
+        };
+        let b = FaceNormals {
+            normal: vec![Vec3::Y, Vec3::ZERO, Vec3::Z],
+            weight: vec![1.0, 0.0, 0.8],
+        };
+        let m = blend_face_normals(&a, &b, 0.5);
+        assert!((m.normal[0] - Vec3::new(1.0, 1.0, 0.0).normalize()).length() < 1e-6);
+        assert!((m.weight[0] - 1.0).abs() < 1e-6);
+        assert_eq!((m.normal[1], m.weight[1]), (Vec3::X, 0.5));
+        assert_eq!((m.normal[2], m.weight[2]), (Vec3::Z, 0.4));
+        let only_a = blend_face_normals(&a, &b, 0.0);
+        assert_eq!(only_a.normal[0], Vec3::X);
+        assert_eq!((only_a.normal[2], only_a.weight[2]), (Vec3::ZERO, 0.0));
     }
 
     /// Holding the vertices by their slack needs a positive reference and the masks.
@@ -1326,9 +1483,9 @@ mod tests {
             ..ShadingRefinement::default()
         };
         for r in [0.0, -1.0, f32::NAN, f32::INFINITY] {
-            assert!(refine_by_shading(&mesh, &images, None, &with(Some(r))).is_err());
+            assert!(refine_by_shading(&mesh, &images, None, None, &with(Some(r))).is_err());
         }
-        let err = refine_by_shading(&mesh, &images, None, &with(Some(0.1))).unwrap_err();
+        let err = refine_by_shading(&mesh, &images, None, None, &with(Some(0.1))).unwrap_err();
         assert!(err.to_string().contains("masks"), "{err}");
     }
 
@@ -1381,7 +1538,7 @@ mod tests {
             rounds: 4,
             ..ShadingRefinement::default()
         };
-        let refined = refine_by_shading(&mesh, &images, None, &settings).unwrap();
+        let refined = refine_by_shading(&mesh, &images, None, None, &settings).unwrap();
         assert_eq!(refined.solved, 0);
         assert!(refined.moves.iter().all(|d| *d == 0.0));
         assert!(

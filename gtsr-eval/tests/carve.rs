@@ -345,6 +345,7 @@ fn the_extraction_recipe_carves_with_masks_and_fuses_a_tsdf_without() {
             camera,
             depth,
             mask,
+            normal: &[],
         })
         .collect();
     let alone = MasksAlone::new(s.cams.iter().copied().zip(s.masks.clone()).collect())

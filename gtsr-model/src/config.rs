@@ -340,6 +340,13 @@ pub struct LossWeights {
     /// lambda3: multi-view geometric term.
     #[arg(long = "multi-view-weight", id = "train.weights.multi_view", value_name = "W", default_value_t = LossWeights::default().multi_view, value_parser = parse_non_negative)]
     pub multi_view: f64,
+    /// PGSR's multi-view photometric consistency ([`crate::losses::multi_view_ncc`]: `1 - cc^2`
+    /// of 7x7 grey patches carried into the multi-view term's neighbour by each pixel's
+    /// rendered plane), on the steps the multi-view term runs, weighted as it is. The GTSR
+    /// paper leaves it out (translucent colour changes between views); 0: off.
+    #[serde(default)]
+    #[arg(long = "multi-view-ncc-weight", id = "train.weights.multi_view_ncc", value_name = "W", default_value_t = LossWeights::default().multi_view_ncc, value_parser = parse_non_negative)]
+    pub multi_view_ncc: f64,
     /// lambda4: interior containment.
     #[arg(long = "interior-weight", id = "train.weights.interior", value_name = "W", default_value_t = LossWeights::default().interior, value_parser = parse_non_negative)]
     pub interior: f64,
@@ -454,6 +461,7 @@ impl Default for LossWeights {
             single_view_start: 0.0025,
             single_view_end: 0.9,
             multi_view: 0.01,
+            multi_view_ncc: 0.0,
             interior: 0.01,
             smooth_roughness: 0.01,
             smooth_base: 0.01,
@@ -967,6 +975,7 @@ impl TrainConfig {
             ("weights.single_view_start", self.weights.single_view_start),
             ("weights.single_view_end", self.weights.single_view_end),
             ("weights.multi_view", self.weights.multi_view),
+            ("weights.multi_view_ncc", self.weights.multi_view_ncc),
             ("weights.interior", self.weights.interior),
             ("weights.smooth_roughness", self.weights.smooth_roughness),
             ("weights.smooth_base", self.weights.smooth_base),

@@ -253,8 +253,31 @@ pub fn step_rng(seed: u64, step: usize, purpose: u64) -> StdRng {
 const RNG_INIT: u64 = 1;
 const RNG_VIEW: u64 = 2;
 const RNG_NEIGHBOUR: u64 = 3;
+
+/// Reference pixels per step of the multi-view photometric term (PGSR samples about 6 % of
+/// its pixels; this is 6 % of 256 x 256).
+pub const NCC_PIXELS: usize = 4096;
+
+/// Up to `count` of the pixels with a positive weight in `weights` (`[H * W]`, detached), drawn
+/// without replacement, with their weights.
+fn ncc_pixels(weights: Tensor<1>, count: usize, rng: &mut StdRng) -> Vec<(usize, f32)> {
+    let all: Vec<(usize, f32)> = host_vec(weights)
+        .into_iter()
+        .enumerate()
+        .filter(|(_, w)| *w > 0.0)
+        .collect();
+    if all.len() <= count {
+        return all;
+    }
+    rand::seq::index::sample(rng, all.len(), count)
+        .into_iter()
+        .map(|k| all[k])
+        .collect()
+}
+
 const RNG_DENSIFY: u64 = 4;
 const RNG_INTERIOR: u64 = 5;
+const RNG_NCC: u64 = 6;
 
 fn uniform_ball(rng: &mut StdRng, radius: f64) -> [f32; 3] {
     loop {
@@ -708,6 +731,26 @@ impl Trainer {
                     &nv.camera,
                     cfg.multi_view_max_error_px,
                 );
+                if w.multi_view_ncc > 0.0 {
+                    let pixels = ncc_pixels(
+                        mv.pixel_weights,
+                        NCC_PIXELS,
+                        &mut step_rng(cfg.seed, step, RNG_NCC),
+                    );
+                    let ncc = losses::multi_view_ncc(
+                        &g.depth,
+                        &g.normal,
+                        &losses::grey(&view.rgb),
+                        &view.camera,
+                        &losses::grey(&nv.rgb),
+                        &nv.camera,
+                        &pixels,
+                    );
+                    add(
+                        "multi_view_ncc",
+                        ncc.loss * (w.multi_view_ncc * every as f64),
+                    );
+                }
                 add("multi_view", mv.loss * (w.multi_view * every as f64));
             }
             if stage2 && w.front_depth > 0.0 {

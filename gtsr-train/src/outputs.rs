@@ -222,17 +222,18 @@ pub fn extract_mesh(
                     .mask
                     .clone()
                     .context("fusing the masks alone needs masks")?;
-                Ok((Vec::new(), mask))
+                Ok((Vec::new(), mask, Vec::new()))
             }
         })
         .collect::<Result<Vec<_>>>()?;
     let views: Vec<gtsr_eval::FusionView> = host_views
         .iter()
         .zip(&maps)
-        .map(|(v, (depth, mask))| gtsr_eval::FusionView {
+        .map(|(v, (depth, mask, normal))| gtsr_eval::FusionView {
             camera: &v.camera,
             depth,
             mask,
+            normal,
         })
         .collect();
     let cameras = training_cameras(scene);
@@ -255,16 +256,17 @@ pub fn extract_mesh(
     Ok(mesh)
 }
 
-/// One fusion view's depth map as fused (zero where not fused; [`gtsr_eval::prepare_depth`])
-/// and its mask (without masks, the coverage at least 0.5). `k` indexes the trainer's views
-/// when [`MeshSettings::fusion_views`] is empty.
+/// One fusion view's depth map as fused (zero where not fused; [`gtsr_eval::prepare_depth`]),
+/// its mask (without masks, the coverage at least 0.5) and its rendered camera-space normals
+/// (premultiplied by the coverage). `k` indexes the trainer's views when
+/// [`MeshSettings::fusion_views`] is empty.
 fn fusion_depth(
     trainer: &Trainer,
     readout: &Readout,
     k: usize,
     data: &gtsr_data::View,
     settings: &MeshSettings,
-) -> Result<(Vec<f32>, Vec<f32>)> {
+) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
     let trained = &trainer.views()[k];
     let same_size = trained.size() == (data.camera.width as usize, data.camera.height as usize);
     let (g, rays) = if settings.fusion_views.is_empty() && same_size {
@@ -299,7 +301,7 @@ fn fusion_depth(
     };
     gtsr_eval::prepare_depth(&data.camera, &mut depth, &geometry, &mask, true)
         .with_context(|| format!("preparing the depth of {}", data.name))?;
-    Ok((depth, mask))
+    Ok((depth, mask, normal))
 }
 
 /// Renders the test views (PSNR/SSIM of C_SH, and of C_PBR when present) and, with a

@@ -274,6 +274,7 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
                 camera: &v.camera,
                 depth,
                 mask: v.mask.as_deref().expect("checked above"),
+                normal: &[],
             })
             .collect();
         let config = MeshConfig {
@@ -431,6 +432,7 @@ fn carve_rows(
                 camera: &v.camera,
                 depth,
                 mask: v.mask.as_deref().expect("checked by the caller"),
+                normal: &[],
             })
             .collect();
         let inputs = FusionInputs {

@@ -41,6 +41,9 @@ pub struct MultiViewTerm {
     pub valid: usize,
     /// Their mean reprojection error in pixels.
     pub mean_error_px: f64,
+    /// `[H * W]` each reference pixel's weight `exp(-phi)` (detached), 0 where left out: the
+    /// pixels [`multi_view_ncc`] may compare, as PGSR takes them.
+    pub pixel_weights: Tensor<1>,
 }
 
 fn pixel_grid(w: usize, h: usize, device: &burn::tensor::Device) -> (Tensor<1>, Tensor<1>) {
@@ -64,6 +67,37 @@ fn project(x: &Tensor<2>, cam: &Camera, near: f64) -> (Tensor<1>, Tensor<1>, Ten
     let u = layout::col(x, 0) / zc.clone() * cam.fx + cam.cx;
     let v = layout::col(x, 1) / zc * cam.fy + cam.cy;
     (u, v, z)
+}
+
+/// Both cameras' world-to-camera rotations and translations as tensors of `dtype`:
+/// `[R_r, t_r, R_n, t_n]` ([`camera_tensors`]).
+fn camera_pair(
+    cam_r: &Camera,
+    cam_n: &Camera,
+    device: &burn::tensor::Device,
+    dtype: burn::tensor::DType,
+) -> [Tensor<2>; 4] {
+    let (rr, tr) = camera_tensors(cam_r, device);
+    let (rn, tn) = camera_tensors(cam_n, device);
+    [rr, tr, rn, tn].map(|t| t.cast(dtype))
+}
+
+/// The samples at pixel positions `(u, v)` within the centres of an `[h, w]` image (where a
+/// bilinear sample has its four corners) and at `z` beyond `near`; not differentiated.
+fn on_image(
+    u: &Tensor<1>,
+    v: &Tensor<1>,
+    z: &Tensor<1>,
+    [h, w]: [usize; 2],
+    near: f64,
+) -> Tensor<1, Bool> {
+    let (u, v) = (u.clone().detach(), v.clone().detach());
+    u.clone()
+        .greater_equal_elem(0.5)
+        .bool_and(u.lower_equal_elem(w as f64 - 0.5))
+        .bool_and(v.clone().greater_equal_elem(0.5))
+        .bool_and(v.lower_equal_elem(h as f64 - 0.5))
+        .bool_and(z.clone().detach().greater_elem(near))
 }
 
 /// Bilinear sample of `map` `[H, W]` at continuous pixel positions (centres at `i + 0.5`),
@@ -123,14 +157,7 @@ pub fn multi_view(
     let m = h * w;
     let device = depth_r.device();
     let dtype = depth_r.dtype();
-    let (rr, tr) = camera_tensors(cam_r, &device);
-    let (rn, tn) = camera_tensors(cam_n, &device);
-    let (rr, tr, rn, tn) = (
-        rr.cast(dtype),
-        tr.cast(dtype),
-        rn.cast(dtype),
-        tn.cast(dtype),
-    );
+    let [rr, tr, rn, tn] = camera_pair(cam_r, cam_n, &device, dtype);
     let xr = rays_r.clone().reshape([m, 3]) * depth_r.clone().reshape([m, 1]);
     let xw = (xr - tr.clone()).matmul(rr.clone());
     let xn = xw.matmul(rn.clone().transpose()) + tn.clone();
@@ -155,14 +182,7 @@ pub fn multi_view(
     let (u0, v0) = pixel_grid(w, h, &device);
     let (u0, v0) = (u0.cast(dtype), v0.cast(dtype));
     let phi = ((ur2 - u0).powf_scalar(2.0) + (vr2 - v0).powf_scalar(2.0) + 1e-12).sqrt();
-    let inside = un
-        .clone()
-        .detach()
-        .greater_equal_elem(0.5)
-        .bool_and(un.detach().lower_equal_elem(wn as f64 - 0.5))
-        .bool_and(vn.clone().detach().greater_equal_elem(0.5))
-        .bool_and(vn.detach().lower_equal_elem(hn as f64 - 0.5))
-        .bool_and(zn.detach().greater_elem(cam_n.near))
+    let inside = on_image(&un, &vn, &zn, [hn, wn], cam_n.near)
         .bool_and(zr2.detach().greater_elem(cam_r.near));
     let keep = inside
         .bool_and(corner_valid.greater_elem(0.5))
@@ -176,11 +196,179 @@ pub fn multi_view(
     } else {
         0.0
     };
-    let loss = (weight * phi).sum() / count.max(1.0);
+    let loss = (weight.clone() * phi).sum() / count.max(1.0);
     MultiViewTerm {
         loss,
         valid: count as usize,
         mean_error_px,
+        pixel_weights: weight,
+    }
+}
+
+/// Half the side of [`multi_view_ncc`]'s patches (PGSR's 7x7).
+pub const NCC_HALF: usize = 3;
+
+/// [`multi_view_ncc`] leaves out the patches whose `1 - cc^2` is this or more: untextured, or
+/// matched nowhere near (PGSR's threshold).
+pub const NCC_MAX: f64 = 0.9;
+
+/// What the multi-view photometric term measured.
+#[derive(Clone, Debug)]
+pub struct NccTerm {
+    /// The loss: the weighted mean of `1 - cc^2` over the patches kept.
+    pub loss: Tensor<1>,
+    /// Patches kept.
+    pub patches: usize,
+    /// Their mean `1 - cc^2`.
+    pub mean: f64,
+}
+
+/// Grey `[H, W]` of an `[H, W, 3]` image (Rec. 601 luma weights, as PGSR).
+pub fn grey(rgb: &Tensor<3>) -> Tensor<2> {
+    let c = |k: usize| layout::channel(rgb, k);
+    c(0) * 0.299 + c(1) * 0.587 + c(2) * 0.114
+}
+
+/// PGSR's multi-view photometric consistency (which the GTSR paper leaves out): each chosen
+/// reference pixel's rendered plane (through its unbiased-depth point, with its normal)
+/// carries the `(2 NCC_HALF + 1)^2` patch around the pixel into the neighbour, where
+/// `grey_n` is sampled (bilinear); the loss is `1 - cc^2` of the two patches' normalised
+/// cross-correlation, weighted per pixel, over the patches that stay inside the neighbour in
+/// front of its camera, whose rays meet the plane at a cosine of at least 0.05, and whose
+/// `1 - cc^2` is below [`NCC_MAX`]. Gradients reach the reference depth and normal maps only.
+///
+/// `pixels`: `(index into the reference's H * W, weight)`; those within `NCC_HALF` of the
+/// border are skipped. `normal_r` may be premultiplied by coverage (it is normalised).
+#[allow(clippy::too_many_arguments)]
+pub fn multi_view_ncc(
+    depth_r: &Tensor<2>,
+    normal_r: &Tensor<3>,
+    grey_r: &Tensor<2>,
+    cam_r: &Camera,
+    grey_n: &Tensor<2>,
+    cam_n: &Camera,
+    pixels: &[(usize, f32)],
+) -> NccTerm {
+    let [h, w] = depth_r.dims();
+    let device = depth_r.device();
+    let dtype = depth_r.dtype();
+    let side = 2 * NCC_HALF + 1;
+    let per = side * side;
+    let half = NCC_HALF as i64;
+    let inner = |i: usize, n: usize| i >= NCC_HALF && i + NCC_HALF < n;
+    let chosen: Vec<(usize, f32)> = pixels
+        .iter()
+        .copied()
+        .filter(|(k, _)| *k < h * w && inner(k % w, w) && inner(k / w, h))
+        .collect();
+    let s = chosen.len();
+    if s == 0 {
+        return NccTerm {
+            loss: Tensor::zeros([1], (&device, dtype)),
+            patches: 0,
+            mean: 0.0,
+        };
+    }
+    let ray = |u: f64, v: f64| {
+        [
+            ((u - cam_r.cx) / cam_r.fx) as f32,
+            ((v - cam_r.cy) / cam_r.fy) as f32,
+            1.0f32,
+        ]
+    };
+    let (mut centres, mut weights, mut rays_p) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut patch_idx, mut rays_q) =
+        (Vec::with_capacity(s * per), Vec::with_capacity(s * per * 3));
+    for (k, wt) in &chosen {
+        let (i, j) = ((k % w) as i64, (k / w) as i64);
+        centres.push(*k as i64);
+        weights.push(*wt);
+        rays_p.extend(ray(i as f64 + 0.5, j as f64 + 0.5));
+        for dj in -half..=half {
+            for di in -half..=half {
+                let (qi, qj) = (i + di, j + dj);
+                patch_idx.push(qj * w as i64 + qi);
+                rays_q.extend(ray(qi as f64 + 0.5, qj as f64 + 0.5));
+            }
+        }
+    }
+    let float = |v: Vec<f32>, shape: Vec<usize>| {
+        Tensor::<1>::from_data(
+            TensorData::new(v, [shape.iter().product::<usize>()]),
+            &device,
+        )
+        .cast(dtype)
+    };
+    let int = |v: Vec<i64>| {
+        let n = v.len();
+        Tensor::<1, Int>::from_data(TensorData::new(v, [n]), &device)
+    };
+    let m = h * w;
+    let idx = int(centres);
+    let d = depth_r.clone().reshape([m]).select(0, idx.clone());
+    let nrm = normal_r.clone().reshape([m, 3]).select(0, idx);
+    let len = nrm
+        .clone()
+        .powf_scalar(2.0)
+        .sum_dim(1)
+        .clamp_min(1e-12)
+        .sqrt();
+    let n = nrm / len;
+    let xp = float(rays_p, vec![s, 3]).reshape([s, 3]) * d.reshape([s, 1]);
+    let num = (n.clone() * xp).sum_dim(1);
+    let n_q = n
+        .reshape([s, 1, 3])
+        .repeat_dim(1, per)
+        .reshape([s * per, 3]);
+    let num_q = num.reshape([s, 1]).repeat_dim(1, per).reshape([s * per, 1]);
+    let rays_q = float(rays_q, vec![s * per, 3]).reshape([s * per, 3]);
+    let ray_len = rays_q.clone().powf_scalar(2.0).sum_dim(1).sqrt();
+    let den = (n_q * rays_q.clone()).sum_dim(1);
+    // The rays that meet the plane at a grazing angle (or behind it) carry nothing.
+    let grazing = (den.clone().detach().neg() / ray_len).lower_elem(0.05);
+    let den = den.mask_fill(grazing.clone(), -1.0);
+    let xq = rays_q * (num_q / den);
+    let [rr, tr, rn, tn] = camera_pair(cam_r, cam_n, &device, dtype);
+    let xn = (xq - tr).matmul(rr).matmul(rn.transpose()) + tn;
+    let (un, vn, zn) = project(&xn, cam_n, cam_n.near);
+    let [hn, wn] = grey_n.dims();
+    let (b, _, _) = bilinear(grey_n, &un, &vn);
+    let a = grey_r
+        .clone()
+        .detach()
+        .reshape([m])
+        .gather(0, int(patch_idx));
+    let inside = on_image(&un, &vn, &zn, [hn, wn], cam_n.near)
+        .bool_and(grazing.reshape([s * per]).bool_not());
+    let patch_ok = inside
+        .float()
+        .cast(dtype)
+        .reshape([s, per])
+        .min_dim(1)
+        .reshape([s]);
+    let (a, b) = (a.reshape([s, per]), b.reshape([s, per]));
+    let mean = |x: Tensor<2>| x.mean_dim(1).reshape([s]);
+    let (ma, mb) = (mean(a.clone()), mean(b.clone()));
+    let cov = mean(a.clone() * b.clone()) - ma.clone() * mb.clone();
+    let va = mean(a.clone() * a) - ma.clone() * ma;
+    let vb = mean(b.clone() * b) - mb.clone() * mb;
+    let cc2 = cov.powf_scalar(2.0) / (va * vb + 1e-8);
+    let ncc = (cc2.neg() + 1.0).clamp(0.0, 2.0);
+    let keep = patch_ok * ncc.clone().detach().lower_elem(NCC_MAX).float().cast(dtype);
+    let patches = keep.clone().sum().into_scalar::<f64>();
+    let mean_ncc = if patches > 0.0 {
+        (ncc.clone().detach() * keep.clone())
+            .sum()
+            .into_scalar::<f64>()
+            / patches
+    } else {
+        0.0
+    };
+    let loss = (ncc * keep * float(weights, vec![s])).sum() / patches.max(1.0);
+    NccTerm {
+        loss,
+        patches: patches as usize,
+        mean: mean_ncc,
     }
 }
 

@@ -4,7 +4,10 @@ pub mod geometric;
 pub mod photometric;
 pub mod regular;
 
-pub use geometric::{MultiViewTerm, interior_containment, multi_view, single_view};
+pub use geometric::{
+    MultiViewTerm, NCC_HALF, NCC_MAX, NccTerm, grey, interior_containment, multi_view,
+    multi_view_ncc, single_view,
+};
 pub use photometric::{l1, photometric, photometric_masked, ssim, ssim_map};
 pub use regular::{
     FRONT_TRANSMITTANCE, HULL_DEPTH_BAND, edge_aware_smoothness, flatten, front_depth, hull_depth,

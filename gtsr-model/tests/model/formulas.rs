@@ -1308,3 +1308,82 @@ fn a_compensated_model_splats_each_opacity_times_the_blur_compensation() {
         sum(&plain)
     );
 }
+
+/// A textured plane `z = 0` seen by `cam`: the grey image, and the z-depth and camera-space
+/// normal (facing the camera) of every pixel.
+fn textured_plane(cam: &Camera) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    let tex = |x: f64, y: f64| {
+        0.5 + 0.2 * (9.0 * x + 1.0).sin() * (7.0 * y).cos() + 0.1 * (17.0 * y - 5.0 * x).sin()
+    };
+    let r = cam.rotation;
+    let c = cam.centre();
+    let (mut grey, mut depth, mut normal) = (Vec::new(), Vec::new(), Vec::new());
+    for j in 0..cam.height {
+        for i in 0..cam.width {
+            let ray = [
+                (i as f64 + 0.5 - cam.cx) / cam.fx,
+                (j as f64 + 0.5 - cam.cy) / cam.fy,
+                1.0,
+            ];
+            // World direction R^T ray; its parameter at the plane is the camera z.
+            let d: Vec<f64> = (0..3)
+                .map(|k| (0..3).map(|l| r[l][k] * ray[l]).sum())
+                .collect();
+            let t = -c[2] / d[2];
+            grey.push(tex(c[0] + t * d[0], c[1] + t * d[1]) as f32);
+            depth.push(t as f32);
+            // R (0, 0, -1): the plane's normal towards the cameras (at z < 0).
+            normal.extend((0..3).map(|l| -r[l][2] as f32));
+        }
+    }
+    (grey, depth, normal)
+}
+
+#[test]
+fn the_multi_view_ncc_term_is_least_on_the_true_plane_and_pulls_towards_it() {
+    let device = Device::ndarray().autodiff();
+    let cam_r =
+        Camera::look_at([0.2, -0.1, -3.0], [0.0; 3], [0.0, -1.0, 0.0], 0.7, 64, 48).unwrap();
+    let cam_n =
+        Camera::look_at([0.9, 0.25, -2.9], [0.0; 3], [0.0, -1.0, 0.0], 0.7, 64, 48).unwrap();
+    let (w, h) = (64, 48);
+    let (grey_r, depth_r, normal_r) = textured_plane(&cam_r);
+    let (grey_n, _, _) = textured_plane(&cam_n);
+    let image = |v: &[f32]| Tensor::<2>::from_data(TensorData::new(v.to_vec(), [h, w]), &device);
+    let normal = Tensor::<3>::from_data(TensorData::new(normal_r.clone(), [h, w, 3]), &device);
+    let pixels: Vec<(usize, f32)> = (0..w * h).map(|k| (k, 1.0)).collect();
+    // The loss at the depth scaled by 1 + eps, and its derivative in eps.
+    let at = |eps: f32| {
+        let scaled: Vec<f32> = depth_r.iter().map(|d| d * (1.0 + eps)).collect();
+        let depth = image(&scaled).require_grad();
+        let term = losses::multi_view_ncc(
+            &depth,
+            &normal,
+            &image(&grey_r),
+            &cam_r,
+            &image(&grey_n),
+            &cam_n,
+            &pixels,
+        );
+        let value = term.loss.clone().into_scalar::<f64>();
+        let g = host_vec(depth.grad(&term.loss.backward()).expect("a gradient"));
+        assert!(
+            g.iter().all(|x| x.is_finite()),
+            "eps {eps}: a gradient not finite"
+        );
+        let slope: f64 = g.iter().zip(&depth_r).map(|(g, d)| f64::from(g * d)).sum();
+        (value, slope, term.patches)
+    };
+    let (l0, _, kept) = at(0.0);
+    assert!(kept > 500, "{kept} patches kept");
+    assert!(l0 < 0.01, "on the true plane: {l0}");
+    for eps in [-0.05f32, 0.05] {
+        let (l, slope, _) = at(eps);
+        assert!(
+            l > 5.0 * l0 + 0.01,
+            "eps {eps}: {l} against {l0} on the plane"
+        );
+        // Descent moves the depth back towards the plane.
+        assert!(slope * f64::from(eps) > 0.0, "eps {eps}: slope {slope}");
+    }
+}

@@ -360,3 +360,46 @@ fn the_multi_view_term_runs_one_step_in_n_weighted_by_n() {
         }
     }
 }
+
+#[test]
+fn the_multi_view_ncc_term_runs_beside_the_multi_view_term_only_when_weighted() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = tiny_scene(dir.path());
+    let device = device();
+    let build = |weight: f64| {
+        let mut cfg = small_config(Preset::Full.components().unwrap(), 30);
+        cfg.multi_view_every = 1;
+        cfg.weights.multi_view_ncc = weight;
+        let vs = views(&scene, &device);
+        let pts = initial_points(&cfg, &vs, &scene.train).expect("points");
+        Trainer::new(cfg, vs, 1.0, &pts, &device).expect("trainer")
+    };
+    let names = |t: &mut Trainer, step: usize| -> Vec<(&'static str, f64)> {
+        let f = t.forward(step).unwrap();
+        f.terms
+            .iter()
+            .map(|(name, v)| (*name, v.clone().into_scalar::<f64>()))
+            .collect()
+    };
+    let (mut off, mut on) = (build(0.0), build(0.15));
+    assert!(on.is_stage2(12));
+    assert!(
+        !names(&mut off, 12)
+            .iter()
+            .any(|(n, _)| *n == "multi_view_ncc")
+    );
+    let terms = names(&mut on, 12);
+    let ncc = terms.iter().find(|(n, _)| *n == "multi_view_ncc");
+    let (_, v) = ncc.expect("the term runs when weighted");
+    assert!(v.is_finite() && *v >= 0.0, "{v}");
+    assert!(terms.iter().any(|(n, _)| *n == "multi_view"));
+    // A whole step with it: finite gradients, parameters updated.
+    on.seek(12);
+    let report = on.step().expect("a step with the term");
+    assert!(
+        report
+            .terms
+            .iter()
+            .any(|(n, v)| *n == "multi_view_ncc" && v.is_finite())
+    );
+}
