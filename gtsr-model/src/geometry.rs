@@ -119,10 +119,20 @@ pub fn facing_normals(
     let n = means.dims()[0];
     let device = means.device();
     let onehot = normal_axis(log_scales);
-    let normal = rot
-        .clone()
-        .matmul(onehot.reshape([n, 3, 1]))
-        .reshape([n, 3]);
+    // The column as a masked row sum in contiguous [N, 9] rows (row-major entries): the
+    // one-hot spread over the entries of its column, and the rows summed, as products with
+    // 0/1 matrices. A batched [3, 3] x [3, 1] product would run one tiny matrix product per
+    // Gaussian, forward and backward, and a broadcast product takes ndarray's slow path.
+    let entries = |rows: usize, cols: usize, one: &dyn Fn(usize, usize) -> bool| {
+        let v: Vec<f32> = (0..rows * cols)
+            .map(|k| f32::from(u8::from(one(k / cols, k % cols))))
+            .collect();
+        Tensor::<2>::from_data(TensorData::new(v, [rows, cols]), &device).cast(means.dtype())
+    };
+    // [3, 9]: axis c marks entries 3 r + c; [9, 3]: entry 3 r + c adds to row r.
+    let spread = entries(3, 9, &|c, e| e % 3 == c);
+    let rows = entries(9, 3, &|e, r| e / 3 == r);
+    let normal = (rot.clone().reshape([n, 9]) * onehot.matmul(spread)).matmul(rows);
     let c = Tensor::<2>::from_data(
         TensorData::new(centre.map(|v| v as f32).to_vec(), [1, 3]),
         &device,

@@ -1387,3 +1387,72 @@ fn the_multi_view_ncc_term_is_least_on_the_true_plane_and_pulls_towards_it() {
         assert!(slope * f64::from(eps) > 0.0, "eps {eps}: slope {slope}");
     }
 }
+
+/// The facing normal is the rotation's column of the smallest scale, flipped towards the
+/// camera centre (against a direct evaluation), and its gradient in the quaternions matches
+/// central differences in f64.
+#[test]
+fn facing_normals_are_the_smallest_axis_towards_the_camera_with_their_gradient() {
+    use burn::tensor::DType::F64;
+    use gtsr_model::geometry::{facing_normals, quat_to_matrix};
+    let device = Device::ndarray().autodiff();
+    let mut rng = StdRng::seed_from_u64(11);
+    let n = 40;
+    let mut draw = |k: usize, lo: f64, hi: f64| -> Vec<f64> {
+        (0..k).map(|_| rng.random_range(lo..hi)).collect()
+    };
+    let (q, ls, means, w) = (
+        draw(4 * n, -1.0, 1.0),
+        draw(3 * n, -4.0, -1.0),
+        draw(3 * n, -0.8, 0.8),
+        draw(3 * n, -1.0, 1.0),
+    );
+    let centre = [0.3, -0.2, -4.0];
+    let t = |v: &[f64], c: usize| {
+        Tensor::<2>::from_data(TensorData::new(v.to_vec(), [n, c]), (&device, F64))
+    };
+    // The loss sum(w * normal) at quaternions `q`, and its gradient.
+    let eval = |q: &[f64]| {
+        let qt = t(q, 4).require_grad();
+        let normal = facing_normals(&quat_to_matrix(&qt), &t(&ls, 3), &t(&means, 3), centre);
+        let values: Vec<f64> = normal.clone().into_data().to_vec::<f64>().unwrap();
+        let loss = (normal * t(&w, 3)).sum();
+        let value = loss.clone().into_scalar::<f64>();
+        let grad: Vec<f64> = qt
+            .grad(&loss.backward())
+            .expect("a gradient")
+            .into_data()
+            .to_vec::<f64>()
+            .unwrap();
+        (values, value, grad)
+    };
+    let (values, _, grad) = eval(&q);
+    for i in 0..n {
+        let r = quat_matrix(&q[4 * i..4 * i + 4]);
+        let s = &ls[3 * i..3 * i + 3];
+        let a = (0..3).min_by(|x, y| s[*x].total_cmp(&s[*y])).unwrap();
+        let to_cam: Vec<f64> = (0..3).map(|k| centre[k] - means[3 * i + k]).collect();
+        let side: f64 = (0..3).map(|k| r[k][a] * to_cam[k]).sum();
+        let sign = if side >= 0.0 { 1.0 } else { -1.0 };
+        for k in 0..3 {
+            let want = sign * r[k][a];
+            let got = values[3 * i + k];
+            assert!(
+                (got - want).abs() < 1e-9,
+                "Gaussian {i}, {k}: {got} against {want}"
+            );
+        }
+    }
+    let h = 1e-6;
+    for (j, g) in grad.iter().enumerate() {
+        let mut qp = q.clone();
+        qp[j] += h;
+        let mut qm = q.clone();
+        qm[j] -= h;
+        let fd = (eval(&qp).1 - eval(&qm).1) / (2.0 * h);
+        assert!(
+            (g - fd).abs() < 1e-6 * (1.0 + fd.abs()),
+            "q[{j}]: {g} against {fd}"
+        );
+    }
+}
