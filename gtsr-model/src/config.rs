@@ -946,6 +946,13 @@ impl TrainConfig {
         if self.densify.demote_every > 0 && !self.components.interior {
             bad.push("densify.demote_every needs the interior set".into());
         }
+        if self.weights.multi_view_ncc > 0.0 && !self.components.multi_view {
+            bad.push(
+                "weights.multi_view_ncc needs the multi-view component (it runs on that term's \
+                 steps, with its neighbour)"
+                    .into(),
+            );
+        }
         if self.weights.mask_band_hinge && self.weights.mask_band == 0 {
             bad.push(
                 "weights.mask_band_hinge needs a weights.mask_band of at least 1 pixel".into(),

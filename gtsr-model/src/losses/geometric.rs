@@ -1,5 +1,7 @@
-//! PGSR's geometric terms for the surface set: the single-view depth-normal consistency and
-//! the multi-view forward-backward reprojection error with a neighbour view.
+//! PGSR's geometric terms for the surface set: the single-view depth-normal consistency, the
+//! multi-view forward-backward reprojection error with a neighbour view, and (opt-in; the
+//! GTSR paper leaves it out) the multi-view photometric consistency of patches carried into
+//! the neighbour by the rendered plane.
 
 use burn::tensor::{Bool, Int, Tensor, TensorData};
 

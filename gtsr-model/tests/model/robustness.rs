@@ -223,6 +223,14 @@ fn bad_views_and_configs_are_refused_with_reasons() {
             && e.contains("multi_view_every must be at least 1"),
         "{e}"
     );
+    let mut cfg = small_config(Preset::Full.components().unwrap(), 10);
+    cfg.weights.multi_view_ncc = 0.15;
+    cfg.components.multi_view = false;
+    let e = cfg.validate().unwrap_err();
+    assert!(
+        e.contains("weights.multi_view_ncc needs the multi-view"),
+        "{e}"
+    );
     let mut comps = Preset::NoPbr.components().unwrap();
     comps.smoothness = true;
     assert!(comps.validate().is_err());
