@@ -936,16 +936,19 @@ pub fn refine_by_shading(
         let fit = shading_normals(on, &views, around.as_ref(), &settings.shading)?;
         let targets = match prior {
             Some(p) => {
-                let maps: Vec<Vec<f32>> = p
-                    .views
-                    .iter()
-                    .map(|(c, _)| caster.render(c).depth)
+                // A prior view at an image's camera reads that image's ray cast.
+                let own = |c: &Camera| images.iter().position(|v| v.camera == c);
+                let maps: Vec<Option<Vec<f32>>> = (p.views.iter())
+                    .map(|(c, _)| own(c).is_none().then(|| caster.render(c).depth))
                     .collect();
                 let nv: Vec<NormalView<'_>> = (p.views.iter().zip(&maps))
-                    .map(|((camera, normal), mesh_depth)| NormalView {
+                    .map(|((camera, normal), cast)| NormalView {
                         camera,
                         normal,
-                        mesh_depth,
+                        mesh_depth: match cast {
+                            Some(d) => d,
+                            None => &depths[own(camera).expect("an image's camera")],
+                        },
                     })
                     .collect();
                 let seen = observed_normals(on, &nv, 1, settings.shading.min_cos)?;

@@ -1,6 +1,7 @@
 //! A short run lowers the loss; every parameter receives gradient.
 
-use gtsr_model::config::Preset;
+use burn::tensor::Device;
+use gtsr_model::config::{Preset, TrainConfig};
 use gtsr_model::gaussians::ParamKind;
 
 use burn::tensor::Tensor;
@@ -328,18 +329,26 @@ fn the_hull_depth_term_starts_at_its_share_of_the_run() {
     assert!(has_term(&mut t, 25));
 }
 
+/// A trainer of the full model over `scene`'s views, 30 steps, with `edit` applied to its
+/// configuration.
+fn full_trainer(
+    scene: &gtsr_data::Scene,
+    device: &Device,
+    edit: impl FnOnce(&mut TrainConfig),
+) -> Trainer {
+    let mut cfg = small_config(Preset::Full.components().unwrap(), 30);
+    edit(&mut cfg);
+    let vs = views(scene, device);
+    let pts = initial_points(&cfg, &vs, &scene.train).expect("points");
+    Trainer::new(cfg, vs, 1.0, &pts, device).expect("trainer")
+}
+
 #[test]
 fn the_multi_view_term_runs_one_step_in_n_weighted_by_n() {
     let dir = tempfile::tempdir().unwrap();
     let scene = tiny_scene(dir.path());
     let device = device();
-    let build = |every: usize| {
-        let mut cfg = small_config(Preset::Full.components().unwrap(), 30);
-        cfg.multi_view_every = every;
-        let vs = views(&scene, &device);
-        let pts = initial_points(&cfg, &vs, &scene.train).expect("points");
-        Trainer::new(cfg, vs, 1.0, &pts, &device).expect("trainer")
-    };
+    let build = |every: usize| full_trainer(&scene, &device, |cfg| cfg.multi_view_every = every);
     let term = |t: &mut Trainer, step: usize| {
         let f = t.forward(step).unwrap();
         let mv = f.terms.iter().find(|(name, _)| *name == "multi_view");
@@ -367,12 +376,10 @@ fn the_multi_view_ncc_term_runs_beside_the_multi_view_term_only_when_weighted() 
     let scene = tiny_scene(dir.path());
     let device = device();
     let build = |weight: f64| {
-        let mut cfg = small_config(Preset::Full.components().unwrap(), 30);
-        cfg.multi_view_every = 1;
-        cfg.weights.multi_view_ncc = weight;
-        let vs = views(&scene, &device);
-        let pts = initial_points(&cfg, &vs, &scene.train).expect("points");
-        Trainer::new(cfg, vs, 1.0, &pts, &device).expect("trainer")
+        full_trainer(&scene, &device, |cfg| {
+            cfg.multi_view_every = 1;
+            cfg.weights.multi_view_ncc = weight;
+        })
     };
     let names = |t: &mut Trainer, step: usize| -> Vec<(&'static str, f64)> {
         let f = t.forward(step).unwrap();
