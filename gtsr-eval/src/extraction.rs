@@ -357,6 +357,20 @@ impl Default for MeshConfig {
 }
 
 impl MeshConfig {
+    /// These settings fusing the rendered depth alone: a TSDF in which the masks cast no vote,
+    /// as PGSR and 2DGS extract their meshes (the settings that read the masks' hull are off). Its mesh is the trained model's own geometry,
+    /// which the default extraction, bounded by the masks, uses only to carve.
+    pub fn depth_only(&self) -> MeshConfig {
+        MeshConfig {
+            fusion: Fusion::Tsdf,
+            fuse_depth: true,
+            silhouette_carving: false,
+            hull_inside_distance: false,
+            snap_to_hull: None,
+            ..self.clone()
+        }
+    }
+
     /// The edge profile [`MeshConfig::edge_sigma`] asks for (`None`: the measured one).
     pub fn edge_profile(&self) -> Option<crate::EdgeProfile> {
         self.edge_sigma.map(|sigma| {
@@ -1388,6 +1402,28 @@ mod tests {
             sigma(Some(0.4)).edge_profile(),
             Some(crate::EdgeProfile::Gaussian { sigma: 0.4 })
         );
+    }
+
+    #[test]
+    fn the_depth_only_settings_fuse_the_depth_alone_and_stay_valid() {
+        let with_hull = MeshConfig {
+            fusion: Fusion::Tsdf,
+            snap_to_hull: Some(2.0),
+            hull_inside_distance: true,
+            voxel: Some(0.02),
+            depth_crossing: Some(0.9),
+            ..Default::default()
+        };
+        for c in [MeshConfig::default(), with_hull] {
+            c.validate().unwrap();
+            let d = c.depth_only();
+            d.validate().unwrap();
+            assert_eq!(d.fusion, Fusion::Tsdf);
+            assert!(d.fuse_depth && !d.silhouette_carving && !d.hull_inside_distance);
+            assert_eq!(d.snap_to_hull, None);
+            // The depth's own settings carry over.
+            assert_eq!((d.voxel, d.depth_crossing), (c.voxel, c.depth_crossing));
+        }
     }
 
     #[test]

@@ -59,6 +59,10 @@ pub struct RunMetrics {
     /// baseline beside `mesh`.
     #[serde(default)]
     pub masks_alone: Option<MeshMetrics>,
+    /// The mesh fused from the rendered depth alone ([`crate::MeshConfig::depth_only`])
+    /// against the seen ground truth, when the scene has masks (without them `mesh` is one).
+    #[serde(default)]
+    pub mesh_depth_only: Option<MeshMetrics>,
     /// Rendered test-view depth and normals against the ground-truth mesh's.
     #[serde(default)]
     pub test_depth: Option<DepthMetrics>,

@@ -1,6 +1,7 @@
 //! Error against run time: a log of evaluation points during training, written as CSV and
 //! plotted as PNG (PSNR against training time, and the chamfer and the depth error against
-//! training time when any point has them).
+//! training time when any point has them; the chamfer panel also draws the mesh fused from the
+//! rendered depth alone, dashed).
 
 use std::path::Path;
 
@@ -22,6 +23,11 @@ pub struct TimelinePoint {
     pub ssim: f64,
     /// Chamfer distance of the extracted mesh, when one was extracted.
     pub chamfer: Option<f64>,
+    /// Chamfer distance of the mesh fused from the rendered depth alone (TSDF without the
+    /// masks, as PGSR and 2DGS extract): the model's own geometry, where the extracted mesh is
+    /// bounded by the masks and may not follow it.
+    #[serde(default)]
+    pub depth_only_chamfer: Option<f64>,
     /// Median absolute error of the rendered surface depth on the evaluation views, against
     /// a ground-truth mesh, when there is one. It follows the geometry where the mesh is
     /// bounded by the masks and does not move.
@@ -46,12 +52,13 @@ pub struct Timeline {
     pub points: Vec<TimelinePoint>,
 }
 
-/// The CSV header [`Timeline::write_csv`] writes and [`Timeline::read_csv`] expects.
+/// The CSV header [`Timeline::write_csv`] writes. [`Timeline::read_csv`] reads the columns by
+/// name and also takes logs without the optional ones ([`OPTIONAL_COLUMNS`]).
 pub const CSV_HEADER: &str =
-    "iteration,train_seconds,psnr,ssim,chamfer,depth_error,gaussians,label";
+    "iteration,train_seconds,psnr,ssim,chamfer,depth_only_chamfer,depth_error,gaussians,label";
 
-/// The header of logs written before the depth error was recorded (still read).
-const CSV_HEADER_V1: &str = "iteration,train_seconds,psnr,ssim,chamfer,gaussians,label";
+/// The columns older logs lack (each read as missing).
+pub const OPTIONAL_COLUMNS: [&str; 2] = ["depth_only_chamfer", "depth_error"];
 
 fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n', '\r']) {
@@ -118,12 +125,15 @@ impl Timeline {
         s.push('\n');
         for p in &self.points {
             s.push_str(&format!(
-                "{},{},{},{},{},{},{},{}\n",
+                "{},{},{},{},{},{},{},{},{}\n",
                 p.iteration,
                 p.train_seconds,
                 p.psnr,
                 p.ssim,
                 p.chamfer.map(|c| c.to_string()).unwrap_or_default(),
+                p.depth_only_chamfer
+                    .map(|c| c.to_string())
+                    .unwrap_or_default(),
                 p.depth_error.map(|c| c.to_string()).unwrap_or_default(),
                 p.gaussians,
                 csv_field(&p.label)
@@ -137,8 +147,8 @@ impl Timeline {
         write_atomic(path, self.to_csv().as_bytes())
     }
 
-    /// Reads a file written by [`Timeline::write_csv`] (or by a version without the depth
-    /// error column). Errors name the file and line.
+    /// Reads a file written by [`Timeline::write_csv`], or by a version without some of the
+    /// [`OPTIONAL_COLUMNS`] (read as missing). Errors name the file and line.
     pub fn read_csv(path: &Path) -> Result<Timeline> {
         let text = std::fs::read_to_string(path).map_err(|e| EvalError::io(path, e))?;
         let err = |line: usize, message: String| EvalError::Parse {
@@ -146,11 +156,20 @@ impl Timeline {
             message: format!("line {line}: {message}"),
         };
         let mut lines = text.lines().enumerate();
-        let fields = match lines.next() {
-            Some((_, h)) if h.trim_end() == CSV_HEADER => 8,
-            Some((_, h)) if h.trim_end() == CSV_HEADER_V1 => 7,
-            _ => return Err(err(1, format!("expected header `{CSV_HEADER}`"))),
+        let header: Vec<&str> = match lines.next() {
+            Some((_, h)) => h.trim_end().split(',').collect(),
+            None => Vec::new(),
         };
+        // Every column of CSV_HEADER, in its order, except optional ones that are absent.
+        let expected: Vec<&str> = CSV_HEADER
+            .split(',')
+            .filter(|c| !OPTIONAL_COLUMNS.contains(c) || header.contains(c))
+            .collect();
+        if header != expected {
+            return Err(err(1, format!("expected header `{CSV_HEADER}`")));
+        }
+        let column = |name: &str| header.iter().position(|c| *c == name);
+        let fields = header.len();
         let mut points = Vec::new();
         for (k, line) in lines {
             if line.trim().is_empty() {
@@ -163,38 +182,33 @@ impl Timeline {
                     format!("expected {fields} fields, found {}", f.len()),
                 ));
             }
-            let num = |i: usize, name: &str| -> Result<f64> {
-                f[i].trim()
-                    .parse::<f64>()
-                    .map_err(|e| err(k + 1, format!("{name} `{}`: {e}", f[i])))
+            let field = |name: &str| column(name).map(|i| f[i].trim());
+            let num = |name: &str| -> Result<f64> {
+                let v = field(name).unwrap_or_default();
+                v.parse::<f64>()
+                    .map_err(|e| err(k + 1, format!("{name} `{v}`: {e}")))
             };
-            let int = |i: usize, name: &str| -> Result<u64> {
-                f[i].trim()
-                    .parse::<u64>()
-                    .map_err(|e| err(k + 1, format!("{name} `{}`: {e}", f[i])))
+            let int = |name: &str| -> Result<u64> {
+                let v = field(name).unwrap_or_default();
+                v.parse::<u64>()
+                    .map_err(|e| err(k + 1, format!("{name} `{v}`: {e}")))
             };
-            let optional = |i: usize, name: &str| -> Result<Option<f64>> {
-                if f[i].trim().is_empty() {
-                    Ok(None)
-                } else {
-                    num(i, name).map(Some)
+            let optional = |name: &str| -> Result<Option<f64>> {
+                match field(name) {
+                    None | Some("") => Ok(None),
+                    Some(_) => num(name).map(Some),
                 }
             };
-            // Without the depth error column the later fields sit one to the left.
-            let d = fields - 7;
             points.push(TimelinePoint {
-                iteration: int(0, "iteration")?,
-                train_seconds: num(1, "train_seconds")?,
-                psnr: num(2, "psnr")?,
-                ssim: num(3, "ssim")?,
-                chamfer: optional(4, "chamfer")?,
-                depth_error: if d == 1 {
-                    optional(5, "depth_error")?
-                } else {
-                    None
-                },
-                gaussians: int(5 + d, "gaussians")?,
-                label: f[6 + d].clone(),
+                iteration: int("iteration")?,
+                train_seconds: num("train_seconds")?,
+                psnr: num("psnr")?,
+                ssim: num("ssim")?,
+                chamfer: optional("chamfer")?,
+                depth_only_chamfer: optional("depth_only_chamfer")?,
+                depth_error: optional("depth_error")?,
+                gaussians: int("gaussians")?,
+                label: column("label").map(|i| f[i].clone()).unwrap_or_default(),
             });
         }
         Ok(Timeline { points })
@@ -203,11 +217,30 @@ impl Timeline {
 
 static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 
-/// A panel of [`plot_png`] with a log axis: one optional value of each point.
+/// One curve per series of a [`LogPanel`]: one optional value of each point.
+struct LogCurve {
+    get: fn(&TimelinePoint) -> Option<f64>,
+    /// Appended to the series' name in the legend.
+    suffix: &'static str,
+    /// Drawn dashed (the secondary curve of a panel).
+    dashed: bool,
+}
+
+/// A panel of [`plot_png`] with a log axis.
 struct LogPanel {
     caption: &'static str,
     y_desc: &'static str,
-    get: fn(&TimelinePoint) -> Option<f64>,
+    curves: Vec<LogCurve>,
+}
+
+impl LogPanel {
+    /// The values of every curve of the panel over `points`.
+    fn values<'p>(&self, points: impl Iterator<Item = &'p TimelinePoint>) -> Vec<f64> {
+        points
+            .flat_map(|p| self.curves.iter().filter_map(|c| (c.get)(p)))
+            .filter(|c| c.is_finite() && *c > 0.0)
+            .collect()
+    }
 }
 
 fn ensure_font() -> std::result::Result<(), String> {
@@ -260,23 +293,35 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
         .ok_or_else(|| plot_err("no finite training time".into()))?;
     let t0 = t0.max(0.0).min(t1 - 1e-9);
     let psnr_range = range_of(all().map(|p| p.psnr)).unwrap_or((0.0, 1.0));
-    let positive = |get: fn(&TimelinePoint) -> Option<f64>| {
-        all().filter_map(get).any(|c| c.is_finite() && c > 0.0)
-    };
     let log_panels: Vec<LogPanel> = [
         LogPanel {
             caption: "Chamfer vs training time",
             y_desc: "chamfer distance (log scale)",
-            get: |p| p.chamfer,
+            curves: vec![
+                LogCurve {
+                    get: |p| p.chamfer,
+                    suffix: "",
+                    dashed: false,
+                },
+                LogCurve {
+                    get: |p| p.depth_only_chamfer,
+                    suffix: ", depth alone",
+                    dashed: true,
+                },
+            ],
         },
         LogPanel {
             caption: "Depth error vs training time",
             y_desc: "median |depth error| (log scale)",
-            get: |p| p.depth_error,
+            curves: vec![LogCurve {
+                get: |p| p.depth_error,
+                suffix: "",
+                dashed: false,
+            }],
         },
     ]
     .into_iter()
-    .filter(|panel| positive(panel.get))
+    .filter(|panel| !panel.values(all()).is_empty())
     .collect();
     let (w, h) = PLOT_SIZE;
     let mut buf = vec![255u8; (w * h * 3) as usize];
@@ -296,6 +341,8 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
             chart
                 .configure_mesh()
                 .x_desc("training time (s)")
+                .x_labels(6)
+                .x_label_formatter(&|v| format!("{v:.0}"))
                 .y_desc("PSNR (dB)")
                 .label_style(("sans-serif", 16))
                 .draw()
@@ -333,10 +380,7 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
                 .map_err(|e| plot_err(e.to_string()))?;
         }
         for (panel, area) in log_panels.iter().zip(&panels[1..]) {
-            let values: Vec<f64> = all()
-                .filter_map(panel.get)
-                .filter(|c| c.is_finite() && *c > 0.0)
-                .collect();
+            let values = panel.values(all());
             let lo = values.iter().cloned().fold(f64::INFINITY, f64::min);
             let hi = values.iter().cloned().fold(0.0, f64::max);
             // log10 of the value on a linear axis, labelled with the value itself: plotters
@@ -353,6 +397,8 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
             chart
                 .configure_mesh()
                 .x_desc("training time (s)")
+                .x_labels(6)
+                .x_label_formatter(&|v| format!("{v:.0}"))
                 .y_desc(panel.y_desc)
                 .y_label_formatter(&|v| format!("{:.1e}", 10f64.powf(*v)))
                 .label_style(("sans-serif", 16))
@@ -360,31 +406,49 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
                 .map_err(|e| plot_err(e.to_string()))?;
             for (k, (name, t)) in series.iter().enumerate() {
                 let c = colour(k);
-                let on_curve = |last: bool| -> Vec<(f64, f64)> {
-                    (t.points.iter())
-                        .filter(|p| (p.label == FINAL_LABEL) == last)
-                        .filter_map(|p| Some((p.train_seconds, (panel.get)(p)?)))
-                        .filter(|(s, c)| s.is_finite() && c.is_finite() && *c > 0.0)
-                        .map(|(s, c)| (s, c.log10()))
-                        .collect()
-                };
-                let (pts, last) = (on_curve(false), on_curve(true));
-                chart
-                    .draw_series(last.iter().map(|&p| Cross::new(p, 7, c.stroke_width(2))))
-                    .map_err(|e| plot_err(e.to_string()))?;
-                if pts.is_empty() {
-                    continue;
+                for curve in &panel.curves {
+                    let on_curve = |last: bool| -> Vec<(f64, f64)> {
+                        (t.points.iter())
+                            .filter(|p| (p.label == FINAL_LABEL) == last)
+                            .filter_map(|p| Some((p.train_seconds, (curve.get)(p)?)))
+                            .filter(|(s, c)| s.is_finite() && c.is_finite() && *c > 0.0)
+                            .map(|(s, c)| (s, c.log10()))
+                            .collect()
+                    };
+                    let (pts, last) = (on_curve(false), on_curve(true));
+                    chart
+                        .draw_series(last.iter().map(|&p| Cross::new(p, 7, c.stroke_width(2))))
+                        .map_err(|e| plot_err(e.to_string()))?;
+                    if pts.is_empty() {
+                        continue;
+                    }
+                    let label = format!("{name}{}", curve.suffix);
+                    let drawn = if curve.dashed {
+                        chart.draw_series(DashedLineSeries::new(
+                            pts.iter().copied(),
+                            8,
+                            6,
+                            c.stroke_width(2),
+                        ))
+                    } else {
+                        chart.draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(2)))
+                    };
+                    let dashed = curve.dashed;
+                    drawn
+                        .map_err(|e| plot_err(e.to_string()))?
+                        .label(label)
+                        .legend(move |(x, y)| {
+                            let style = c.stroke_width(2);
+                            if dashed {
+                                PathElement::new(vec![(x, y), (x + 7, y)], style)
+                            } else {
+                                PathElement::new(vec![(x, y), (x + 20, y)], style)
+                            }
+                        });
+                    chart
+                        .draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
+                        .map_err(|e| plot_err(e.to_string()))?;
                 }
-                chart
-                    .draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(2)))
-                    .map_err(|e| plot_err(e.to_string()))?
-                    .label(name.to_string())
-                    .legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
-                    });
-                chart
-                    .draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
-                    .map_err(|e| plot_err(e.to_string()))?;
             }
             chart
                 .configure_series_labels()

@@ -103,6 +103,7 @@ fn plot_subcommand_writes_a_png() {
             psnr: 20.0 + k as f64,
             ssim: 0.9,
             chamfer: Some(0.01 / (k + 1) as f64),
+            depth_only_chamfer: None,
             depth_error: None,
             gaussians: 1000,
             label: "run".into(),

@@ -51,6 +51,10 @@ pub struct Evaluation {
     /// Mesh metrics against the whole ground truth ([`gtsr_eval::chamfer`]), hidden faces included;
     /// only for the final (not coarse) evaluation.
     pub mesh_whole_gt: Option<MeshMetrics>,
+    /// The mesh fused from the rendered depth alone ([`gtsr_eval::MeshConfig::depth_only`])
+    /// against the seen ground truth: the model's own geometry, which follows the training
+    /// where `mesh` is bounded by the masks. Only when the extraction uses the masks.
+    pub depth_only: Option<MeshMetrics>,
     /// Rendered depth and normals of the test views against the ground-truth mesh, inside the
     /// masks ([`test_view_geometry`]).
     pub depth: Option<DepthMetrics>,
@@ -78,6 +82,7 @@ impl Evaluation {
             psnr: self.psnr,
             ssim: self.ssim,
             chamfer: self.mesh.as_ref().map(|m| m.chamfer),
+            depth_only_chamfer: self.depth_only.as_ref().map(|m| m.chamfer),
             depth_error: self.depth.as_ref().map(|d| d.depth_median_abs),
             gaussians: (ns + ni) as u64,
             label: label.into(),
@@ -204,6 +209,24 @@ pub fn extract_mesh(
     settings: &MeshSettings,
     coarse: bool,
 ) -> Result<TriMesh> {
+    Ok(extract_meshes(trainer, scene, settings, coarse, false)?.0)
+}
+
+/// Whether the extraction under `config` uses the masks (so that the depth alone gives
+/// another mesh), on views that all have one.
+fn uses_masks(config: &gtsr_eval::MeshConfig, masked: bool) -> bool {
+    masked && (config.fusion == gtsr_eval::Fusion::Carve || config.silhouette_carving)
+}
+
+/// [`extract_mesh`], and with `depth_only` where the extraction uses the masks, the mesh
+/// fused from the same depth maps alone ([`gtsr_eval::MeshConfig::depth_only`]).
+fn extract_meshes(
+    trainer: &Trainer,
+    scene: &Scene,
+    settings: &MeshSettings,
+    coarse: bool,
+    depth_only: bool,
+) -> Result<(TriMesh, Option<TriMesh>)> {
     let readout = readout(trainer.model(), settings);
     let host_views: Vec<&gtsr_data::View> = if settings.fusion_views.is_empty() {
         scene.train.iter().collect()
@@ -253,7 +276,22 @@ pub fn extract_mesh(
             println!("{n}");
         }
     }
-    Ok(mesh)
+    let alone = if depth_only && settings.config.fuse_depth && uses_masks(&settings.config, masked)
+    {
+        let t0 = Instant::now();
+        let m = gtsr_eval::extract_mesh(&settings.config.depth_only(), &inputs)?.0;
+        if !coarse {
+            println!(
+                "the depth alone fused (TSDF, no masks): {} triangles ({:.1} s)",
+                m.triangles.len(),
+                t0.elapsed().as_secs_f64()
+            );
+        }
+        Some(m)
+    } else {
+        None
+    };
+    Ok((mesh, alone))
 }
 
 /// One fusion view's depth map as fused (zero where not fused; [`gtsr_eval::prepare_depth`]),
@@ -342,20 +380,26 @@ pub fn evaluate(
             np += 1;
         }
     }
-    let (mesh, mesh_whole_gt, extracted) = match gt {
+    let (mesh, mesh_whole_gt, depth_only, extracted) = match gt {
         Some(gt) if trainer.is_stage2(trainer.steps_done().saturating_sub(1)) => {
-            let m = extract_mesh(trainer, scene, settings, coarse)?;
+            let (m, alone) = extract_meshes(trainer, scene, settings, coarse, true)?;
+            let hull = settings.masks.as_ref().map(|m| &m.mesh);
+            let cameras = training_cameras(scene);
+            let depth_only = match alone {
+                Some(a) if !a.triangles.is_empty() => {
+                    Some(score_against_ground_truth(&a, gt, &cameras, hull)?.0)
+                }
+                _ => None,
+            };
             if m.triangles.is_empty() {
-                (None, None, Some(m))
+                (None, None, depth_only, Some(m))
             } else {
-                let hull = settings.masks.as_ref().map(|m| &m.mesh);
-                let (seen, whole) =
-                    score_against_ground_truth(&m, gt, &training_cameras(scene), hull)?;
+                let (seen, whole) = score_against_ground_truth(&m, gt, &cameras, hull)?;
                 // The whole-ground-truth number is reported only at the end (`finish`).
-                (Some(seen), (!coarse).then_some(whole), Some(m))
+                (Some(seen), (!coarse).then_some(whole), depth_only, Some(m))
             }
         }
-        _ => (None, None, None),
+        _ => (None, None, None, None),
     };
     let (depth, depth_area) = match gt {
         Some(gt) => test_view_geometry(&model, tests, scene, gt, settings, !coarse)?,
@@ -369,6 +413,7 @@ pub fn evaluate(
         psnr_pbr: avg(pp, np),
         mesh,
         mesh_whole_gt,
+        depth_only,
         depth,
         depth_area,
         extracted,
@@ -586,6 +631,7 @@ pub fn finish(
         mesh: e.mesh,
         mesh_whole_gt: e.mesh_whole_gt,
         masks_alone,
+        mesh_depth_only: e.depth_only,
         test_depth: e.depth,
         test_depth_area: e.depth_area,
         mesh_vertices: mesh.positions.len(),
@@ -660,6 +706,13 @@ pub fn finish(
         println!(
             "masks alone ({} px masks): chamfer x1e3 {:.2}{}",
             settings.masks.as_ref().map_or(0, |n| n.views[0].0.width),
+            m.chamfer * 1e3,
+            blind(m)
+        );
+    }
+    if let Some(m) = &e.depth_only {
+        println!(
+            "the rendered depth alone (TSDF, no masks): chamfer x1e3 {:.2}{}",
             m.chamfer * 1e3,
             blind(m)
         );

@@ -814,6 +814,9 @@ pub fn run(args: &Args) -> Result<Outcome> {
                         ", chamfer {:.5} (x1e3: {:.2})",
                         m.chamfer,
                         m.chamfer * 1e3
+                    )) + &e.depth_only.as_ref().map_or(String::new(), |m| format!(
+                        ", depth alone x1e3 {:.2}",
+                        m.chamfer * 1e3
                     )) + &e.depth.as_ref().map_or(String::new(), |d| format!(
                         ", depth error x1e3 median {:.2} bias {:+.2}",
                         d.depth_median_abs * 1e3,

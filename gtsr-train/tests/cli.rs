@@ -103,6 +103,14 @@ fn trains_a_tiny_scene_and_writes_every_output() {
     // The masks alone are scored beside the mesh, and both split by what the masks miss.
     let masks = m["masks_alone"]["chamfer"].as_f64().unwrap();
     assert!(masks.is_finite() && masks > 0.0, "{m}");
+    // So is the depth fused alone (the model's own geometry), in metrics.json and on the
+    // curve's final point, where it differs from the mesh's.
+    let alone = m["mesh_depth_only"]["chamfer"].as_f64().unwrap();
+    assert!(alone.is_finite() && alone > 0.0, "{m}");
+    assert!(m["mesh_depth_only"]["hull_blind"].is_object(), "{m}");
+    let a = last[0].depth_only_chamfer.unwrap();
+    assert!((a - alone).abs() <= 1e-12 * alone, "{a} against {alone}");
+    assert_ne!(alone, chamfer);
     // Forty steps leave a depth far behind the surface and scattered about it (not a surface
     // yet): the carving is refused and the mesh does not lose to the masks alone.
     assert!(

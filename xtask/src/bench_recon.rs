@@ -392,6 +392,19 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                     },
                 ));
                 rows.push(row);
+                // The run fuses its depth alone too (`metrics.json`'s `mesh_depth_only`).
+                if let Some(alone) = m.mesh_depth_only {
+                    let depth_only = Metrics {
+                        mesh: Some(alone),
+                        mesh_whole_gt: None,
+                        ..m.clone()
+                    };
+                    rows.push(geometry_row(
+                        &depth_only,
+                        format!("{label}, depth only (no silhouettes in the fusion)"),
+                        &name,
+                    ));
+                }
                 write_report(args, &rows, &trained)?;
                 if let Ok(tl) = Timeline::read_csv(&out.join("error_vs_time.csv")) {
                     series.push((format!("{name} {label}"), tl));
@@ -402,21 +415,11 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                 if args.training_only || m.mesh.is_none() {
                     continue;
                 }
-                let mut fusions = vec![
-                    Fusion {
-                        suffix: "tsdf",
-                        mesh: serde_json::json!({ "fusion": "tsdf" }),
-                        label: format!("{label}, TSDF fusion with the masks' hull"),
-                    },
-                    Fusion {
-                        suffix: "depth-only",
-                        mesh: serde_json::json!({
-                            "fusion": "tsdf",
-                            "silhouette_carving": false,
-                        }),
-                        label: format!("{label}, depth only (no silhouettes in the fusion)"),
-                    },
-                ];
+                let mut fusions = vec![Fusion {
+                    suffix: "tsdf",
+                    mesh: serde_json::json!({ "fusion": "tsdf" }),
+                    label: format!("{label}, TSDF fusion with the masks' hull"),
+                }];
                 if !args.no_crossing_rows {
                     let t = args.depth_crossing;
                     fusions.push(Fusion {
