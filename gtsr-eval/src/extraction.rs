@@ -358,8 +358,9 @@ impl Default for MeshConfig {
 
 impl MeshConfig {
     /// These settings fusing the rendered depth alone: a TSDF in which the masks cast no vote,
-    /// as PGSR and 2DGS extract their meshes (the settings that read the masks' hull are off). Its mesh is the trained model's own geometry,
-    /// which the default extraction, bounded by the masks, uses only to carve.
+    /// as PGSR and 2DGS extract their meshes (the settings that read the masks' hull are off).
+    /// Its mesh is the trained model's own geometry, which the default extraction, bounded by
+    /// the masks, uses only to carve.
     pub fn depth_only(&self) -> MeshConfig {
         MeshConfig {
             fusion: Fusion::Tsdf,

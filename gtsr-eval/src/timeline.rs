@@ -1,7 +1,7 @@
 //! Error against run time: a log of evaluation points during training, written as CSV and
 //! plotted as PNG (PSNR against training time, and the chamfer and the depth error against
 //! training time when any point has them; the chamfer panel also draws the mesh fused from the
-//! rendered depth alone, dashed).
+//! rendered depth alone, dashed, and the masks alone, dotted).
 
 use std::path::Path;
 
@@ -28,6 +28,10 @@ pub struct TimelinePoint {
     /// bounded by the masks and may not follow it.
     #[serde(default)]
     pub depth_only_chamfer: Option<f64>,
+    /// Chamfer distance of the masks alone at the dataset's resolution (the same at every
+    /// point of a run): the baseline a mesh must beat.
+    #[serde(default)]
+    pub masks_alone_chamfer: Option<f64>,
     /// Median absolute error of the rendered surface depth on the evaluation views, against
     /// a ground-truth mesh, when there is one. It follows the geometry where the mesh is
     /// bounded by the masks and does not move.
@@ -54,11 +58,12 @@ pub struct Timeline {
 
 /// The CSV header [`Timeline::write_csv`] writes. [`Timeline::read_csv`] reads the columns by
 /// name and also takes logs without the optional ones ([`OPTIONAL_COLUMNS`]).
-pub const CSV_HEADER: &str =
-    "iteration,train_seconds,psnr,ssim,chamfer,depth_only_chamfer,depth_error,gaussians,label";
+pub const CSV_HEADER: &str = "iteration,train_seconds,psnr,ssim,chamfer,depth_only_chamfer,\
+                              masks_alone_chamfer,depth_error,gaussians,label";
 
 /// The columns older logs lack (each read as missing).
-pub const OPTIONAL_COLUMNS: [&str; 2] = ["depth_only_chamfer", "depth_error"];
+pub const OPTIONAL_COLUMNS: [&str; 3] =
+    ["depth_only_chamfer", "masks_alone_chamfer", "depth_error"];
 
 fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n', '\r']) {
@@ -125,13 +130,16 @@ impl Timeline {
         s.push('\n');
         for p in &self.points {
             s.push_str(&format!(
-                "{},{},{},{},{},{},{},{},{}\n",
+                "{},{},{},{},{},{},{},{},{},{}\n",
                 p.iteration,
                 p.train_seconds,
                 p.psnr,
                 p.ssim,
                 p.chamfer.map(|c| c.to_string()).unwrap_or_default(),
                 p.depth_only_chamfer
+                    .map(|c| c.to_string())
+                    .unwrap_or_default(),
+                p.masks_alone_chamfer
                     .map(|c| c.to_string())
                     .unwrap_or_default(),
                 p.depth_error.map(|c| c.to_string()).unwrap_or_default(),
@@ -206,6 +214,7 @@ impl Timeline {
                 ssim: num("ssim")?,
                 chamfer: optional("chamfer")?,
                 depth_only_chamfer: optional("depth_only_chamfer")?,
+                masks_alone_chamfer: optional("masks_alone_chamfer")?,
                 depth_error: optional("depth_error")?,
                 gaussians: int("gaussians")?,
                 label: column("label").map(|i| f[i].clone()).unwrap_or_default(),
@@ -217,13 +226,22 @@ impl Timeline {
 
 static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 
+/// How a [`LogCurve`] is drawn.
+#[derive(Clone, Copy, PartialEq)]
+enum Stroke {
+    Solid,
+    /// Long dashes.
+    Dashed,
+    /// Short dashes.
+    Dotted,
+}
+
 /// One curve per series of a [`LogPanel`]: one optional value of each point.
 struct LogCurve {
     get: fn(&TimelinePoint) -> Option<f64>,
     /// Appended to the series' name in the legend.
     suffix: &'static str,
-    /// Drawn dashed (the secondary curve of a panel).
-    dashed: bool,
+    stroke: Stroke,
 }
 
 /// A panel of [`plot_png`] with a log axis.
@@ -301,12 +319,17 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
                 LogCurve {
                     get: |p| p.chamfer,
                     suffix: "",
-                    dashed: false,
+                    stroke: Stroke::Solid,
                 },
                 LogCurve {
                     get: |p| p.depth_only_chamfer,
                     suffix: ", depth alone",
-                    dashed: true,
+                    stroke: Stroke::Dashed,
+                },
+                LogCurve {
+                    get: |p| p.masks_alone_chamfer,
+                    suffix: ", masks alone",
+                    stroke: Stroke::Dotted,
                 },
             ],
         },
@@ -316,7 +339,7 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
             curves: vec![LogCurve {
                 get: |p| p.depth_error,
                 suffix: "",
-                dashed: false,
+                stroke: Stroke::Solid,
             }],
         },
     ]
@@ -415,7 +438,16 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
                             .map(|(s, c)| (s, c.log10()))
                             .collect()
                     };
-                    let (pts, last) = (on_curve(false), on_curve(true));
+                    // A baseline (dotted) is one line through every point, final included,
+                    // without markers.
+                    let baseline = curve.stroke == Stroke::Dotted;
+                    let (pts, last) = if baseline {
+                        let mut all = on_curve(false);
+                        all.extend(on_curve(true));
+                        (all, Vec::new())
+                    } else {
+                        (on_curve(false), on_curve(true))
+                    };
                     chart
                         .draw_series(last.iter().map(|&p| Cross::new(p, 7, c.stroke_width(2))))
                         .map_err(|e| plot_err(e.to_string()))?;
@@ -423,31 +455,41 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
                         continue;
                     }
                     let label = format!("{name}{}", curve.suffix);
-                    let drawn = if curve.dashed {
-                        chart.draw_series(DashedLineSeries::new(
+                    let style = c.stroke_width(2);
+                    let drawn = match curve.stroke {
+                        Stroke::Solid => {
+                            chart.draw_series(LineSeries::new(pts.iter().copied(), style))
+                        }
+                        Stroke::Dashed => chart.draw_series(DashedLineSeries::new(
                             pts.iter().copied(),
                             8,
                             6,
-                            c.stroke_width(2),
-                        ))
-                    } else {
-                        chart.draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(2)))
+                            style,
+                        )),
+                        Stroke::Dotted => chart.draw_series(DashedLineSeries::new(
+                            pts.iter().copied(),
+                            2,
+                            4,
+                            style,
+                        )),
                     };
-                    let dashed = curve.dashed;
+                    // The legend's sample: as long as the stroke's first dash.
+                    let sample = match curve.stroke {
+                        Stroke::Solid => 20,
+                        Stroke::Dashed => 8,
+                        Stroke::Dotted => 3,
+                    };
                     drawn
                         .map_err(|e| plot_err(e.to_string()))?
                         .label(label)
                         .legend(move |(x, y)| {
-                            let style = c.stroke_width(2);
-                            if dashed {
-                                PathElement::new(vec![(x, y), (x + 7, y)], style)
-                            } else {
-                                PathElement::new(vec![(x, y), (x + 20, y)], style)
-                            }
+                            PathElement::new(vec![(x, y), (x + sample, y)], style)
                         });
-                    chart
-                        .draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
-                        .map_err(|e| plot_err(e.to_string()))?;
+                    if !baseline {
+                        chart
+                            .draw_series(pts.iter().map(|&p| Circle::new(p, 3, c.filled())))
+                            .map_err(|e| plot_err(e.to_string()))?;
+                    }
                 }
             }
             chart

@@ -104,6 +104,7 @@ fn plot_subcommand_writes_a_png() {
             ssim: 0.9,
             chamfer: Some(0.01 / (k + 1) as f64),
             depth_only_chamfer: None,
+            masks_alone_chamfer: None,
             depth_error: None,
             gaussians: 1000,
             label: "run".into(),

@@ -18,6 +18,7 @@ fn timeline_with(label: &str, scale: f64, with_chamfer: bool, with_depth: bool) 
             chamfer: (with_chamfer && k % 2 == 0).then(|| 0.05 / (1.0 + k as f64)),
             depth_only_chamfer: (with_chamfer && with_depth && k % 2 == 0)
                 .then(|| 0.2 / (1.0 + k as f64)),
+            masks_alone_chamfer: (with_chamfer && with_depth).then_some(0.03),
             depth_error: (with_depth && k > 0).then(|| 0.02 / (k as f64).sqrt()),
             gaussians: 10_000 + 5_000 * k,
             label: label.to_string(),
@@ -36,7 +37,12 @@ fn csv_round_trips_exactly() {
     let back = Timeline::read_csv(&path).unwrap();
     assert_eq!(back, t);
     assert!(back.points.iter().any(|p| p.depth_only_chamfer.is_some()));
-    // Logs written before the depth-only chamfer column still read, without it.
+    assert!(
+        back.points
+            .iter()
+            .all(|p| p.masks_alone_chamfer == Some(0.03))
+    );
+    // Logs written before the depth-only and masks-alone columns still read, without them.
     std::fs::write(
         &path,
         "iteration,train_seconds,psnr,ssim,chamfer,depth_error,gaussians,label
@@ -49,9 +55,10 @@ fn csv_round_trips_exactly() {
         (
             v2.points[0].chamfer,
             v2.points[0].depth_only_chamfer,
+            v2.points[0].masks_alone_chamfer,
             v2.points[0].depth_error
         ),
-        (Some(0.01), None, Some(0.02))
+        (Some(0.01), None, None, Some(0.02))
     );
     assert_eq!(
         (v2.points[0].gaussians, v2.points[0].label.as_str()),
@@ -82,11 +89,11 @@ fn csv_round_trips_exactly() {
     );
     std::fs::write(
         &path,
-        "iteration,train_seconds,psnr,ssim,chamfer,depth_only_chamfer,depth_error,gaussians,label\n1,2,3,0.5,,,0.02,5\n",
+        "iteration,train_seconds,psnr,ssim,chamfer,depth_only_chamfer,masks_alone_chamfer,depth_error,gaussians,label\n1,2,3,0.5,,,,0.02,5\n",
     )
     .unwrap();
     let e = Timeline::read_csv(&path).unwrap_err().to_string();
-    assert!(e.contains("expected 9 fields"), "{e}");
+    assert!(e.contains("expected 10 fields"), "{e}");
     // No temporary file left behind.
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     std::fs::write(
@@ -129,21 +136,26 @@ fn plots_are_written_as_png() {
             .count()
     };
     assert!(drawn(0, 466) > 1000 && drawn(467, 933) > 1000 && drawn(934, 1400) > 1000);
-    // The depth-only chamfer is a second curve in the chamfer panel, and only there.
-    let mut no_depth_only = c.clone();
-    for p in &mut no_depth_only.points {
-        p.depth_only_chamfer = None;
+    // The depth-only chamfer and the masks alone are further curves in the chamfer panel, and
+    // only there.
+    let without: [fn(&mut TimelinePoint); 2] = [
+        |p| p.depth_only_chamfer = None,
+        |p| p.masks_alone_chamfer = None,
+    ];
+    for clear in without {
+        let mut fewer = c.clone();
+        fewer.points.iter_mut().for_each(clear);
+        let path = dir.path().join("fewer.png");
+        plot_png(&path, &[("gtsr", &fewer)]).unwrap();
+        let img_fewer = image::open(&path).unwrap().to_rgb8();
+        let differ = |x0: u32, x1: u32| {
+            (img3.enumerate_pixels().zip(img_fewer.pixels()))
+                .filter(|((x, _, p), q)| *x >= x0 && *x < x1 && p != q)
+                .count()
+        };
+        assert!(differ(467, 933) > 100, "{}", differ(467, 933));
+        assert_eq!((differ(0, 466), differ(934, 1400)), (0, 0));
     }
-    let without = dir.path().join("without.png");
-    plot_png(&without, &[("gtsr", &no_depth_only)]).unwrap();
-    let img_without = image::open(&without).unwrap().to_rgb8();
-    let differ = |x0: u32, x1: u32| {
-        (img3.enumerate_pixels().zip(img_without.pixels()))
-            .filter(|((x, _, p), q)| *x >= x0 && *x < x1 && p != q)
-            .count()
-    };
-    assert!(differ(467, 933) > 200, "{}", differ(467, 933));
-    assert_eq!((differ(0, 466), differ(934, 1400)), (0, 0));
     let one = dir.path().join("one.png");
     plot_png(&one, &[("pgsr", &b)]).unwrap();
     assert!(std::fs::metadata(&one).unwrap().len() > 1000);

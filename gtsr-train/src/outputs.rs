@@ -33,6 +33,25 @@ pub struct MeshSettings {
     /// The mesh box from the masks ([`hull_bounds`], computed once per run); `None`: from the
     /// surface Gaussians at each extraction.
     pub bounds: Option<(Vec3, Vec3)>,
+    /// The masks alone scored against the ground truth the training cameras see
+    /// ([`score_masks_alone`], once per run): the baseline beside every mesh.
+    pub masks_alone: Option<MeshMetrics>,
+}
+
+/// The masks' mesh of `masks` against the ground truth `gt` that the training cameras see, split
+/// by the part it misses (the scene's masks alone, with a ground truth).
+pub fn score_masks_alone(
+    masks: Option<&gtsr_eval::MasksAlone>,
+    gt: Option<&TriMesh>,
+    scene: &Scene,
+) -> Result<Option<MeshMetrics>> {
+    Ok(match (gt, masks) {
+        (Some(gt), Some(masks)) => {
+            let cameras = training_cameras(scene);
+            Some(score_against_ground_truth(&masks.mesh, gt, &cameras, Some(&masks.mesh))?.0)
+        }
+        _ => None,
+    })
 }
 
 /// One evaluation.
@@ -55,6 +74,9 @@ pub struct Evaluation {
     /// against the seen ground truth: the model's own geometry, which follows the training
     /// where `mesh` is bounded by the masks. Only when the extraction uses the masks.
     pub depth_only: Option<MeshMetrics>,
+    /// The masks alone against the same ground truth ([`MeshSettings::masks_alone`]), beside
+    /// every evaluation.
+    pub masks_alone: Option<MeshMetrics>,
     /// Rendered depth and normals of the test views against the ground-truth mesh, inside the
     /// masks ([`test_view_geometry`]).
     pub depth: Option<DepthMetrics>,
@@ -83,6 +105,7 @@ impl Evaluation {
             ssim: self.ssim,
             chamfer: self.mesh.as_ref().map(|m| m.chamfer),
             depth_only_chamfer: self.depth_only.as_ref().map(|m| m.chamfer),
+            masks_alone_chamfer: self.masks_alone.as_ref().map(|m| m.chamfer),
             depth_error: self.depth.as_ref().map(|d| d.depth_median_abs),
             gaussians: (ns + ni) as u64,
             label: label.into(),
@@ -414,6 +437,7 @@ pub fn evaluate(
         mesh,
         mesh_whole_gt,
         depth_only,
+        masks_alone: settings.masks_alone,
         depth,
         depth_area,
         extracted,
@@ -605,13 +629,7 @@ pub fn finish(
     let n_splats = write_splats(trainer, scene, out)?;
     let n_strips = write_strips(trainer, tests, scene, &out.join("renders"))?;
     let (ns, ni) = trainer.model().counts();
-    let masks_alone = match (gt, &settings.masks) {
-        (Some(gt), Some(masks)) => {
-            let cameras = training_cameras(scene);
-            Some(score_against_ground_truth(&masks.mesh, gt, &cameras, Some(&masks.mesh))?.0)
-        }
-        _ => None,
-    };
+    let masks_alone = settings.masks_alone;
     let metrics = gtsr_eval::RunMetrics {
         iterations: trainer.steps_done(),
         train_seconds,

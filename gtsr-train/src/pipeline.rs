@@ -694,6 +694,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
     let mesh_settings = MeshSettings {
         fusion_views: fusion_views(mesh_config.mesh_resolution, &data_dir, &opts, &scene)?,
         config: mesh_config,
+        masks_alone: outputs::score_masks_alone(masks.as_ref(), gt_mesh.as_ref(), &scene)?,
         masks,
         bounds: outputs::hull_bounds(&scene.train)?,
     };

@@ -110,6 +110,8 @@ fn trains_a_tiny_scene_and_writes_every_output() {
     assert!(m["mesh_depth_only"]["hull_blind"].is_object(), "{m}");
     let a = last[0].depth_only_chamfer.unwrap();
     assert!((a - alone).abs() <= 1e-12 * alone, "{a} against {alone}");
+    let b = last[0].masks_alone_chamfer.unwrap();
+    assert!((b - masks).abs() <= 1e-12 * masks, "{b} against {masks}");
     assert_ne!(alone, chamfer);
     // Forty steps leave a depth far behind the surface and scattered about it (not a surface
     // yet): the carving is refused and the mesh does not lose to the masks alone.
