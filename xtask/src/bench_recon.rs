@@ -392,8 +392,9 @@ pub fn run(args: &BenchReconArgs) -> Result<()> {
                     },
                 ));
                 rows.push(row);
-                // The run fuses its depth alone too (`metrics.json`'s `mesh_depth_only`).
-                if let Some(alone) = m.mesh_depth_only {
+                // The run fuses its depth alone too (`metrics.json`'s `mesh_depth_only`); like
+                // the other fusions of a run, not with `--training-only`.
+                if let Some(alone) = m.mesh_depth_only.filter(|_| !args.training_only) {
                     let depth_only = Metrics {
                         mesh: Some(alone),
                         mesh_whole_gt: None,
