@@ -29,7 +29,7 @@ use crate::shading::{
     NormalPrior, ShadingImage, ShadingRefinement, ShadingSettings, refine_by_shading,
 };
 use crate::tsdf::{
-    TsdfVolume, default_truncation, default_voxel_for_radius, drop_depth_edges, faces_ray,
+    TsdfVolume, default_truncation, default_voxel, drop_depth_edges, faces_ray,
     median_pixel_footprint, snap_to_hull,
 };
 use crate::visible::{faces_kept, faces_observed_among};
@@ -250,7 +250,9 @@ pub struct MeshConfig {
     /// at the object, at the dataset's resolution.
     #[arg(long = "carve-voxel", id = "mesh.carve_voxel", value_name = "SIZE", value_parser = parse_positive)]
     pub carve_voxel: Option<f32>,
-    /// TSDF: the voxel size (scene units). Default: the radius of the mesh box / 256.
+    /// TSDF: the voxel size (scene units). Default: the radius of the mesh box / 256, and no
+    /// finer than a quarter of a training pixel's footprint at the object
+    /// ([`crate::tsdf::default_voxel`]).
     #[arg(long = "voxel", id = "mesh.voxel", value_name = "SIZE", value_parser = parse_positive)]
     pub voxel: Option<f32>,
     /// TSDF: the truncation (scene units). Default: the larger of 0.75 times the radius of the
@@ -795,7 +797,7 @@ fn depth_maps<'a>(
 /// [`MeshConfig::cull_unobserved`], without the carved walls no depth map observes, and, with
 /// [`MeshConfig::shading_anchor`] and [`MasksAlone::radiance`] (not when `coarse`), refined by
 /// the images' shading (and with [`MeshConfig::shading_depth`] the depth maps). Otherwise a
-/// TSDF of the depth maps on the box (voxel: its radius / 256 unless set), with the masks'
+/// TSDF of the depth maps on the box (voxel: [`crate::tsdf::default_voxel`] unless set), with the masks'
 /// hull kept in the volume when every view has a mask and [`MeshConfig::silhouette_carving`]
 /// is on; then marching cubes and the largest connected component.
 pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMesh, Vec<String>)> {
@@ -879,9 +881,10 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
         return Ok((mesh, notes));
     }
     let radius = 0.5 * (hi - lo).max_element();
+    let footprint = || median_pixel_footprint(inputs.footprint_cameras, 0.5 * (lo + hi));
     let mut voxel = config
         .voxel
-        .unwrap_or_else(|| default_voxel_for_radius(radius));
+        .unwrap_or_else(|| default_voxel(radius, footprint()));
     if inputs.coarse {
         voxel *= 2.5;
     }
@@ -897,7 +900,6 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
             "fusing the masks alone needs a mask on every view and silhouette carving".into(),
         ));
     }
-    let footprint = || median_pixel_footprint(inputs.footprint_cameras, 0.5 * (lo + hi));
     let truncation = match (config.truncation, config.truncation_footprints) {
         (Some(t), _) => t,
         (None, Some(f)) => f * footprint(),

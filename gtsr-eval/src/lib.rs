@@ -48,5 +48,5 @@ pub use metrics::{
 };
 pub use report::{ReportRow, RunMetrics, markdown_table, seed_summary_table};
 pub use timeline::{FINAL_LABEL, Timeline, TimelinePoint, plot_png};
-pub use tsdf::{TsdfVolume, default_voxel_for_radius};
+pub use tsdf::{TsdfVolume, default_voxel, default_voxel_for_radius};
 pub use visible::{observed_faces, outer_surface, pixel_visible_faces, winding_numbers};

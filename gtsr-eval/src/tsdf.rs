@@ -45,6 +45,24 @@ pub fn default_voxel_for_radius(radius: f32) -> f32 {
     radius / 256.0
 }
 
+/// The finest default voxel in pixel footprints ([`default_voxel`]).
+pub const MIN_VOXEL_FOOTPRINTS: f32 = 0.25;
+
+/// The default voxel for an object of bounding radius `radius` seen with pixel footprint
+/// `footprint` at the object: [`default_voxel_for_radius`], but no finer than
+/// [`MIN_VOXEL_FOOTPRINTS`] of a footprint. Depth maps sample the surface once per pixel, so
+/// a grid much finer than their footprint holds no more of it and only costs time (a few
+/// dozen pixels across the object would otherwise get the grid of a full-size image). A
+/// footprint that is not positive and finite leaves the radius's voxel.
+pub fn default_voxel(radius: f32, footprint: f32) -> f32 {
+    let by_radius = default_voxel_for_radius(radius);
+    if footprint.is_finite() && footprint > 0.0 {
+        by_radius.max(MIN_VOXEL_FOOTPRINTS * footprint)
+    } else {
+        by_radius
+    }
+}
+
 /// Mesh-box radii in the default truncation with free-space votes ([`default_truncation`]).
 pub const TRUNCATION_RADII: f32 = 0.75;
 

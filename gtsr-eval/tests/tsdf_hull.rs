@@ -5,7 +5,9 @@ use gtsr_eval::mesh::{component_sizes, icosphere, is_closed};
 use gtsr_eval::tsdf::{
     default_truncation, drop_depth_edges, faces_ray, median_pixel_footprint, snap_to_hull,
 };
-use gtsr_eval::{EvalError, TsdfVolume, chamfer, default_voxel_for_radius, visual_hull};
+use gtsr_eval::{
+    EvalError, TsdfVolume, chamfer, default_voxel, default_voxel_for_radius, visual_hull,
+};
 
 #[test]
 fn fused_sphere_depths_give_the_sphere() {
@@ -74,6 +76,21 @@ fn integrate_checks_sizes_and_new_checks_arguments() {
     assert!(TsdfVolume::new(Vec3::ZERO, Vec3::ONE, 0.0, 0.3).is_err());
     assert!(TsdfVolume::new(Vec3::ZERO, Vec3::ONE, 1e-6, 0.3).is_err());
     assert!((default_voxel_for_radius(1.0) - 1.0 / 256.0).abs() < 1e-9);
+}
+
+/// The default voxel is the radius's, except where a quarter footprint is coarser: images of
+/// a few dozen pixels get a grid their depth can fill.
+#[test]
+fn the_default_voxel_is_no_finer_than_a_quarter_footprint() {
+    let by_radius = default_voxel_for_radius(1.0);
+    // 256 px of a unit object: a footprint of about 0.01, the radius's voxel stays.
+    assert_eq!(default_voxel(1.0, 0.01), by_radius);
+    // 24 px: a footprint of 0.1, a voxel of 0.025.
+    assert!((default_voxel(1.0, 0.1) - 0.025).abs() < 1e-9);
+    // No footprint (no camera, or a degenerate one): the radius's voxel.
+    for f in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+        assert_eq!(default_voxel(1.0, f), by_radius);
+    }
 }
 
 #[test]

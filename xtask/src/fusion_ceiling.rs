@@ -24,7 +24,7 @@ use gtsr_eval::tsdf::{
 };
 use gtsr_eval::{
     DepthGeometry, Fusion, FusionInputs, FusionView, MasksAlone, MeshConfig, MeshRaycaster,
-    default_voxel_for_radius, extract_mesh, score_against_ground_truth,
+    default_voxel, extract_mesh, score_against_ground_truth,
 };
 
 use crate::bench_recon::{ground_truth, scene_name};
@@ -155,8 +155,8 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
     let (lo, hi) = gtsr_eval::hull::hull_box(&masked)?
         .with_context(|| format!("{}: nothing is inside every mask", scene_dir.display()))?;
     let radius = 0.5 * (hi - lo).max_element();
-    let voxel = default_voxel_for_radius(radius);
     let footprint = median_pixel_footprint(scene.train.iter().map(|v| &v.camera), 0.5 * (lo + hi));
+    let voxel = default_voxel(radius, footprint);
     let long = default_truncation(radius, footprint, true);
     println!(
         "{}: box radius {radius:.3}, voxel {voxel:.5}, footprint {footprint:.4}, \
