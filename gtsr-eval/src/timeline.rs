@@ -293,6 +293,25 @@ fn range_of(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
 /// Plot size in pixels.
 const PLOT_SIZE: (u32, u32) = (1400, 560);
 
+/// Height of one legend row in pixels at the legend's 16 px font, with its spacing.
+const LEGEND_ROW_PX: f64 = 22.0;
+/// The legend's frame and its gap to the plot's edge, in pixels.
+const LEGEND_FRAME_PX: f64 = 24.0;
+/// What a log panel's caption, margins and x-axis labels take of its height, in pixels.
+const PANEL_FURNITURE_PX: f64 = 112.0;
+
+/// The share of the data's range to add above it so that a legend of `entries` rows at the
+/// top of a panel `panel_px` high lies above every curve (at most 2: a panel too short for
+/// its legend keeps two thirds of its height for the data).
+fn legend_headroom(entries: usize, panel_px: u32) -> f64 {
+    if entries == 0 {
+        return 0.0;
+    }
+    let plot = (f64::from(panel_px) - PANEL_FURNITURE_PX).max(1.0);
+    let legend = LEGEND_FRAME_PX + LEGEND_ROW_PX * entries as f64;
+    (legend / (plot - legend).max(plot / 3.0)).min(2.0)
+}
+
 /// Draws PSNR against training time (left panel) and, when any point has them, the chamfer
 /// distance and the depth error against training time on log axes (further panels), one
 /// line per series with a legend, a series' final evaluation ([`FINAL_LABEL`]) as a cross
@@ -409,7 +428,14 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
             // log10 of the value on a linear axis, labelled with the value itself: plotters
             // labels a log axis only at powers of ten, so a range inside one decade (every
             // method at 1.8e-3 to 4.6e-3) had no label at all.
-            let (lo, hi) = ((lo / 1.25).log10(), (hi * 1.25).log10());
+            let (lo, mut hi) = ((lo / 1.25).log10(), (hi * 1.25).log10());
+            // Room above the data for the legend in the upper right, so that it covers no curve.
+            let entries = (series.iter())
+                .flat_map(|(_, t)| {
+                    (panel.curves.iter()).filter(|c| t.points.iter().any(|p| (c.get)(p).is_some()))
+                })
+                .count();
+            hi += (hi - lo) * legend_headroom(entries, area.dim_in_pixel().1);
             let mut chart = ChartBuilder::on(area)
                 .caption(panel.caption, ("sans-serif", 24))
                 .margin(16)

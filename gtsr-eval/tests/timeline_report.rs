@@ -292,3 +292,46 @@ fn seed_summary_gives_mean_spread_and_paired_wins() {
         "| pgsr | t | 0 | 20.00 | - | 1.0 | - | 30.00 | 0.9900 | 1:00 | - | - |"
     );
 }
+
+/// The legend sits above the curves: chamfer curves that rise to the panel's upper right,
+/// where the legend goes, pass under no part of it.
+#[test]
+fn the_legend_covers_no_curve() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut t = timeline_with("gtsr", 1.0, true, true);
+    for (k, p) in t.points.iter_mut().enumerate() {
+        p.chamfer = Some(0.001 * (1.0 + k as f64));
+        p.depth_only_chamfer = Some(0.0015 * (1.0 + k as f64));
+        p.masks_alone_chamfer = Some(0.004);
+    }
+    let path = dir.path().join("rising.png");
+    plot_png(&path, &[("gtsr", &t)]).unwrap();
+    let img = image::open(&path).unwrap().to_rgb8();
+    // The chamfer panel is the middle third. In its upper right quarter the legend's frame
+    // is the only long black horizontal run: its top and bottom rows and its columns.
+    let (w, h) = img.dimensions();
+    let (x0, x1) = (w / 3, 2 * w / 3);
+    let mut frame_rows = Vec::new();
+    let mut columns = (u32::MAX, 0);
+    for y in 0..h / 2 {
+        let run: Vec<u32> = ((x0 + x1) / 2..x1)
+            .filter(|&x| img.get_pixel(x, y).0 == [0, 0, 0])
+            .collect();
+        if run.len() > 60 {
+            frame_rows.push(y);
+            columns = (run[0], *run.last().unwrap());
+        }
+    }
+    let (top, bottom) = (*frame_rows.first().unwrap(), *frame_rows.last().unwrap());
+    assert!(bottom > top + 20, "no legend frame found ({frame_rows:?})");
+    // Inside the frame, the legend's translucent white turns a curve under it pink (the
+    // series' red, Palette99's first, at a fifth); its own samples are drawn in full red.
+    let pink = (columns.0 + 1..columns.1)
+        .flat_map(|x| (top + 1..bottom).map(move |y| (x, y)))
+        .filter(|&(x, y)| {
+            let [r, g, b] = img.get_pixel(x, y).0.map(i32::from);
+            r > 240 && r - g > 20 && r - b > 15
+        })
+        .count();
+    assert_eq!(pink, 0, "{pink} pixels of curve under the legend");
+}
