@@ -26,7 +26,8 @@ use crate::mesh::largest_component;
 use crate::metrics::SignedDistance;
 use crate::refine::{debiased_depth_targets, observed_offsets};
 use crate::shading::{
-    NormalPrior, ShadingImage, ShadingRefinement, ShadingSettings, refine_by_shading,
+    NormalPrior, ShadingImage, ShadingRefinement, ShadingSettings, ShadingView, own_normals,
+    refine_by_shading, shading_normals, surroundings,
 };
 use crate::tsdf::{
     TsdfVolume, default_truncation, default_voxel, drop_depth_edges, faces_ray,
@@ -88,6 +89,8 @@ pub const DEFAULT_CONCAVITY_GATE: f32 = 3.0;
 pub const DEFAULT_CARVE_MAX_OPENED: f32 = 0.01;
 /// The default of [`MeshConfig::carve_max_spread`], footprints.
 pub const DEFAULT_CARVE_MAX_SPREAD: f32 = 1.0;
+/// The default of [`MeshConfig::carve_min_lid_departure`].
+pub const DEFAULT_CARVE_MIN_LID_DEPARTURE: f32 = 1.25;
 /// The default tolerance in footprints of [`MeshConfig::cull_unobserved`].
 pub const DEFAULT_CULL_UNOBSERVED: f32 = 3.0;
 /// How far the shading refinement may move a vertex outward, in the masks' footprints, when
@@ -238,6 +241,18 @@ pub struct MeshConfig {
     /// quarter of what the views see spreads them too: raise it there. 0: no check.
     #[arg(skip = DEFAULT_CARVE_MAX_SPREAD)]
     pub carve_max_spread: f32,
+    /// Carving, where the masks' views carry their radiance (as for the shading refinement):
+    /// how much more the images' shading must depart from the masks' bound over the carved
+    /// volume than elsewhere. The departure is the median angle between the shading normals
+    /// and the bound's own, over the bound's faces that lie above the carved volume and over
+    /// the others; at or below this ratio the carving is refused and the bound goes on alone.
+    /// Over a concavity the masks cannot see, the bound is a lid whose pixels show the
+    /// concavity's shading, which no normal of the lid explains. Over a dent that the depth
+    /// holds and the images do not (a model stopped mid-schedule, alike in every view that
+    /// sees it, so that it passes the other checks), the shading finds the bound to be the
+    /// surface, as anywhere else. 0: no check.
+    #[arg(skip = DEFAULT_CARVE_MIN_LID_DEPARTURE)]
+    pub carve_min_lid_departure: f32,
     /// Carving: before the gate and the carving read them, move the depth maps towards the
     /// cameras by the median of how far they lie behind the masks' bound where both see the
     /// object ([`crate::hull_offset`], in footprints, when positive): a depth that runs behind
@@ -331,6 +346,7 @@ impl Default for MeshConfig {
             cull_unobserved: DEFAULT_CULL_UNOBSERVED,
             carve_max_opened: DEFAULT_CARVE_MAX_OPENED,
             carve_max_spread: DEFAULT_CARVE_MAX_SPREAD,
+            carve_min_lid_departure: DEFAULT_CARVE_MIN_LID_DEPARTURE,
             carve_debias: true,
             shading_anchor: DEFAULT_SHADING_ANCHOR,
             shading_depth: 0.0,
@@ -475,6 +491,12 @@ impl MeshConfig {
                     "mesh.{name} must be a finite number of footprints >= 0, got {v}"
                 ));
             }
+        }
+        if !(self.carve_min_lid_departure.is_finite() && self.carve_min_lid_departure >= 0.0) {
+            return bad(format!(
+                "mesh.carve_min_lid_departure must be a finite ratio >= 0, got {}",
+                self.carve_min_lid_departure
+            ));
         }
         if !(0.0..=1.0).contains(&self.shading_normals_rendered) {
             return bad(format!(
@@ -1024,7 +1046,9 @@ fn carving_bound<'a>(
 /// inside the masks' bound where the concavity gate lets them, and the walls no map observes
 /// are culled. The carving is refused (the bound instead) when the maps are not a surface
 /// yet: their `offset` quartiles from the bound ([`hull_offset`]) spread wider than
-/// [`MeshConfig::carve_max_spread`], or the carved mesh opens the silhouettes.
+/// [`MeshConfig::carve_max_spread`], the carved mesh opens the silhouettes, or the images'
+/// shading finds the bound over the carved volume to be the surface
+/// ([`MeshConfig::carve_min_lid_departure`]).
 fn carve_inside_bound(
     config: &MeshConfig,
     inputs: &FusionInputs,
@@ -1112,7 +1136,108 @@ fn carve_inside_bound(
             );
         }
     }
+    let t0 = std::time::Instant::now();
+    if config.carve_min_lid_departure > 0.0
+        && let Some(radiance) = &masks.radiance
+        && let Some(d) = lid_departure(bound_mesh, &carved, masks, radiance)?
+    {
+        notes.push(format!(
+            "carving: the images' shading departs {:.1} deg (median) from the masks' bound over \
+             the carved volume ({} faces solved), {:.1} deg elsewhere ({} faces) ({:.1} s)",
+            d.lid,
+            d.lid_solved,
+            d.rest,
+            d.rest_solved,
+            t0.elapsed().as_secs_f64()
+        ));
+        if d.lid <= config.carve_min_lid_departure * d.rest {
+            return refused(
+                notes,
+                format!(
+                    "the images' shading finds the masks' bound over the carved volume no less \
+                     the surface than elsewhere (mesh.carve_min_lid_departure {})",
+                    config.carve_min_lid_departure
+                ),
+            );
+        }
+    }
     Ok(carved)
+}
+
+/// How far the images' shading normals lie from the masks' bound ([`lid_departure`]), in
+/// degrees.
+#[derive(Clone, Copy, Debug)]
+struct LidDeparture {
+    /// Median over the solved faces of the bound that lie above the carved volume.
+    lid: f32,
+    lid_solved: usize,
+    /// Median over the bound's other solved faces.
+    rest: f32,
+    rest_solved: usize,
+}
+
+/// The departure of the images' shading normals from the faces of `bound` (the masks' mesh)
+/// that lie more than the masks' voxel from `carved` (the lid over what the carving took
+/// away), and from its other faces; the normals solved as the shading refinement solves them
+/// (the interreflection modelled), without shrinking them towards the faces' own. `None` when
+/// the carving took nothing away or the shading solves no face of the lid or none elsewhere.
+fn lid_departure(
+    bound: &TriMesh,
+    carved: &TriMesh,
+    masks: &MasksAlone,
+    radiance: &[Vec<f32>],
+) -> Result<Option<LidDeparture>> {
+    let carved_distance = SignedDistance::new(carved, "the carved mesh")?;
+    let lid: Vec<bool> = (bound.triangles.par_iter())
+        .map(|t| carved_distance.query(face_centroid(bound, *t)).0.abs() > masks.voxel)
+        .collect();
+    if !lid.iter().any(|l| *l) {
+        return Ok(None);
+    }
+    let caster = MeshRaycaster::new(bound, "the masks' mesh")?;
+    let depths: Vec<Vec<f32>> = (masks.views.iter())
+        .map(|(c, _)| caster.render(c).depth)
+        .collect();
+    let views: Vec<ShadingView<'_>> = (masks.views.iter().zip(radiance).zip(&depths))
+        .map(|(((camera, mask), radiance), mesh_depth)| ShadingView {
+            camera,
+            radiance,
+            mask: Some(mask),
+            mesh_depth,
+        })
+        .collect();
+    let defaults = ShadingRefinement::default();
+    let settings = ShadingSettings {
+        shrink: false,
+        ..defaults.shading
+    };
+    let around = surroundings(bound, defaults.surrounding_rays)?;
+    let fit = shading_normals(bound, &views, Some(&around), &settings)?;
+    let own = own_normals(bound);
+    let (mut over, mut rest) = (Vec::new(), Vec::new());
+    for (f, on_lid) in lid.iter().enumerate() {
+        if fit.normals.weight[f] <= 0.0 {
+            continue;
+        }
+        let angle = (fit.normals.normal[f].dot(own.normal[f]))
+            .clamp(-1.0, 1.0)
+            .acos()
+            .to_degrees();
+        if *on_lid { &mut over } else { &mut rest }.push(angle);
+    }
+    let median = |v: &mut Vec<f32>| {
+        v.sort_by(f32::total_cmp);
+        quantile(v, 0.5)
+    };
+    let (Some(lid_median), Some(rest_median)) = (median(&mut over), median(&mut rest)) else {
+        return Ok(None);
+    };
+    Ok(Some(LidDeparture {
+        lid: lid_median,
+        lid_solved: over.len(),
+        rest: rest_median,
+        rest_solved: rest.len(),
+    }))
 }
 
 /// `mesh` refined by the shading of the masks' views ([`refine_by_shading`]) with the settings
@@ -1438,8 +1563,9 @@ mod tests {
         assert!(serde_json::from_str::<MeshConfig>(r#"{"voxels": 1}"#).is_err());
     }
 
-    /// Coverage masks of a sphere (8 x 8 samples a pixel), `n` views on a Fibonacci sphere.
-    fn sphere_masks(n: usize, size: u32, radius: f32) -> Vec<(Camera, Vec<f32>)> {
+    /// `n` cameras of `size` pixels square on a Fibonacci sphere of radius 4, looking at the
+    /// origin.
+    fn sphere_cameras(n: usize, size: u32) -> Vec<Camera> {
         let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
         (0..n)
             .map(|k| {
@@ -1448,7 +1574,15 @@ mod tests {
                 let a = golden * k as f32;
                 let eye = 4.0 * Vec3::new(r * a.cos(), y, r * a.sin());
                 let up = if y.abs() > 0.9 { Vec3::X } else { Vec3::Y };
-                let cam = Camera::look_at(eye, Vec3::ZERO, up, 0.69, size, size);
+                Camera::look_at(eye, Vec3::ZERO, up, 0.69, size, size)
+            })
+            .collect()
+    }
+
+    /// Coverage masks of a sphere (8 x 8 samples a pixel), from [`sphere_cameras`].
+    fn sphere_masks(n: usize, size: u32, radius: f32) -> Vec<(Camera, Vec<f32>)> {
+        (sphere_cameras(n, size).into_iter())
+            .map(|cam| {
                 let s = 8;
                 let mut mask = vec![0.0f32; (size * size) as usize];
                 for j in 0..size {
@@ -1788,6 +1922,137 @@ mod tests {
         assert!(!refused(&notes), "{notes:?}");
         let bad = MeshConfig {
             carve_max_spread: -1.0,
+            ..MeshConfig::default()
+        };
+        assert!(bad.validate().is_err());
+    }
+
+    /// One view of [`mesh_views`].
+    struct MeshView {
+        camera: Camera,
+        mask: Vec<f32>,
+        depth: Vec<f32>,
+        radiance: Vec<f32>,
+    }
+
+    /// [`sphere_cameras`] looking at `mesh`: per view its mask (4x4 rays a pixel), its
+    /// z-depth where the mask is at least 0.5, and its Lambertian radiance under a light at the
+    /// camera.
+    fn mesh_views(mesh: &TriMesh, n: usize, size: u32) -> Vec<MeshView> {
+        let caster = MeshRaycaster::new(mesh, "the test mesh").unwrap();
+        (sphere_cameras(n, size).into_iter())
+            .map(|cam| {
+                let eye = cam.centre();
+                let mut mask = vec![0.0f32; (size * size) as usize];
+                let mut radiance = vec![0.0f32; mask.len()];
+                for j in 0..size {
+                    for i in 0..size {
+                        let k = (j * size + i) as usize;
+                        let mut hits = 0;
+                        for s in 0..16 {
+                            let u = i as f32 + (s % 4) as f32 / 4.0 + 0.125;
+                            let v = j as f32 + (s / 4) as f32 / 4.0 + 0.125;
+                            let (o, d) = cam.ray(u, v);
+                            hits += u32::from(caster.first_hit(o, d).is_some());
+                        }
+                        mask[k] = hits as f32 / 16.0;
+                        let (o, d) = cam.pixel_ray(i, j);
+                        if let Some((t, nrm)) = caster.first_hit(o, d) {
+                            let to = eye - (o + t * d);
+                            let r2 = to.length_squared();
+                            radiance[k] = 0.7 * nrm.dot(to / r2.sqrt()).max(0.0) / r2;
+                        }
+                    }
+                }
+                let mut depth = caster.render(&cam).depth;
+                for (z, m) in depth.iter_mut().zip(&mask) {
+                    if *m < 0.5 {
+                        *z = 0.0;
+                    }
+                }
+                MeshView {
+                    camera: cam,
+                    mask,
+                    depth,
+                    radiance,
+                }
+            })
+            .collect()
+    }
+
+    /// A sphere of `radius` with a smooth dent `depth` deep in its cap within 25 degrees of
+    /// the -y pole (the masks see it down to the plane of its rim only).
+    fn dented_sphere(radius: f32, depth: f32) -> TriMesh {
+        let mut m = crate::mesh::icosphere(Vec3::ZERO, radius, 5);
+        let c0 = 25f32.to_radians().cos();
+        for p in &mut m.positions {
+            let t = ((-p.y / p.length() - c0) / (1.0 - c0)).clamp(0.0, 1.0);
+            *p *= 1.0 - depth * t * t * (3.0 - 2.0 * t) / radius;
+        }
+        m
+    }
+
+    /// A dent that the depth maps hold alike in every view and the images do not show (a
+    /// model stopped mid-schedule): it opens no silhouette and spreads the offsets little,
+    /// so only the shading check refuses its carving; the images' shading finds the sphere's
+    /// bound to be the surface over it. Where the images show the same dent, the carving
+    /// stands.
+    #[test]
+    fn a_dent_the_images_do_not_show_is_refused_by_the_shading() {
+        let (radius, size) = (0.8, 64);
+        let footprint = 0.5 * sphere_footprint_32();
+        let dent = dented_sphere(radius, 6.0 * footprint);
+        let round = crate::mesh::icosphere(Vec3::ZERO, radius, 5);
+        let dented_views = mesh_views(&dent, 24, size);
+        let round_views = mesh_views(&round, 24, size);
+        // The images (masks, radiance) of one object, the depth of the dented one.
+        let extract = |images: &[MeshView], min_lid: f32| {
+            let masks = (images.iter())
+                .map(|v| (v.camera, v.mask.clone()))
+                .collect();
+            let masks = MasksAlone::new(masks)
+                .unwrap()
+                .expect("a sphere")
+                .with_radiance(images.iter().map(|v| v.radiance.clone()).collect())
+                .unwrap();
+            let maps: Vec<Vec<f32>> = dented_views.iter().map(|v| v.depth.clone()).collect();
+            let config = MeshConfig {
+                carve_voxel: Some(0.03),
+                shading_anchor: 0.0,
+                carve_min_lid_departure: min_lid,
+                ..MeshConfig::default()
+            };
+            let (mesh, notes) = sphere_extract(&masks, &maps, &config);
+            let bound = masks.bound_mesh().clone();
+            (mesh, bound, notes)
+        };
+        let refused = |notes: &[String]| notes.iter().any(|n| n.starts_with("carving refused"));
+        let by_shading = |notes: &[String]| {
+            (notes.iter()).any(|n| n.starts_with("carving refused: the images' shading"))
+        };
+        // Unchecked, the depth's dent is carved into the round object.
+        let (dug, bound, notes) = extract(&round_views, 0.0);
+        assert!(!refused(&notes), "{notes:?}");
+        let inside = |m: &TriMesh| {
+            (m.positions.iter())
+                .filter(|p| p.length() < radius - 2.0 * footprint)
+                .count()
+        };
+        assert!(
+            inside(&dug) > 20,
+            "{} vertices dug in; {notes:?}",
+            inside(&dug)
+        );
+        // Checked, the shading refuses it: the bound goes on alone.
+        let (kept, _, notes) = extract(&round_views, DEFAULT_CARVE_MIN_LID_DEPARTURE);
+        assert!(by_shading(&notes), "{notes:?}");
+        assert_eq!(kept, bound);
+        // The images show the dent: the carving stands.
+        let (carved, _, notes) = extract(&dented_views, DEFAULT_CARVE_MIN_LID_DEPARTURE);
+        assert!(!refused(&notes), "{notes:?}");
+        assert!(inside(&carved) > 20, "{notes:?}");
+        let bad = MeshConfig {
+            carve_min_lid_departure: f32::NAN,
             ..MeshConfig::default()
         };
         assert!(bad.validate().is_err());

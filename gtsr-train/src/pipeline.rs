@@ -654,9 +654,10 @@ pub fn run(args: &Args) -> Result<Outcome> {
     {
         bail!("mesh.{name} applies to --fusion tsdf (the default is carve)");
     }
-    // The shading refinement reads the images as lit by one light at the camera, the PBR
-    // component's assumption.
-    let shading = mesh_config.shading_anchor > 0.0 && trainer.config().components.pbr;
+    // The shading refinement and the carving's shading check read the images as lit by one
+    // light at the camera, the PBR component's assumption.
+    let shading = (mesh_config.shading_anchor > 0.0 || mesh_config.carve_min_lid_departure > 0.0)
+        && trainer.config().components.pbr;
     if mesh_config.shading_anchor > 0.0 && !shading {
         println!("shading refinement: off (the light is not known to be at the camera)");
     }

@@ -19,6 +19,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use glam::Vec3;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
+use gtsr_eval::shading::linear_radiance;
 use gtsr_eval::tsdf::{
     DEPTH_ONLY_TRUNCATION_FOOTPRINTS, default_truncation, median_pixel_footprint,
 };
@@ -344,10 +345,14 @@ fn carve_rows(
     let (lo, hi) = gtsr_eval::hull::hull_box(&masks)?.context("empty masks")?;
     let t0 = Instant::now();
     // Bounded by the hull of the masks' edges, as gtsr-train's default; scored against the
-    // masks alone.
+    // masks alone. With the images' radiance, for the carving's shading check.
+    let radiance = (native.train.iter())
+        .map(|v| linear_radiance(&v.rgb, v.encoding == gtsr_data::Encoding::Srgb, None))
+        .collect();
     let alone = MasksAlone::new(masks.iter().map(|(c, m)| (*c, m.to_vec())).collect())?
         .context("empty masks")?
-        .with_edge_distance()?;
+        .with_edge_distance()?
+        .with_radiance(radiance)?;
     let hull = alone.mesh.clone();
     let mut rows = Vec::new();
     let mut score = |label: String, mesh: &gtsr_data::ply::TriMesh, secs: f64| -> Result<()> {
@@ -416,8 +421,8 @@ fn carve_rows(
         carve_concavity_gate: args.carve_concavity_gate,
         carve_gate_radius: args.carve_gate_radius,
         cull_unobserved: args.cull_unobserved,
-        // The carving alone: the shading refinement that follows it in gtsr-train reads the
-        // images, not the depth (`shading-stereo` measures it).
+        // The carving alone (with its shading check): the shading refinement that follows it
+        // in gtsr-train reads the images, not the depth (`shading-stereo` measures it).
         shading_anchor: 0.0,
         ..MeshConfig::default()
     };
