@@ -819,9 +819,10 @@ fn depth_maps<'a>(
 /// [`MeshConfig::cull_unobserved`], without the carved walls no depth map observes, and, with
 /// [`MeshConfig::shading_anchor`] and [`MasksAlone::radiance`] (not when `coarse`), refined by
 /// the images' shading (and with [`MeshConfig::shading_depth`] the depth maps). Otherwise a
-/// TSDF of the depth maps on the box (voxel: [`crate::tsdf::default_voxel`] unless set), with the masks'
-/// hull kept in the volume when every view has a mask and [`MeshConfig::silhouette_carving`]
-/// is on; then marching cubes and the largest connected component.
+/// TSDF of the depth maps on the box (voxel: [`crate::tsdf::default_voxel`] unless set), with
+/// the masks' hull kept in the volume when every view has a mask and
+/// [`MeshConfig::silhouette_carving`] is on; then marching cubes and the largest connected
+/// component.
 pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMesh, Vec<String>)> {
     config.validate()?;
     if config.shading_normals_rendered > 0.0
