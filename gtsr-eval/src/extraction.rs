@@ -26,8 +26,8 @@ use crate::mesh::largest_component;
 use crate::metrics::SignedDistance;
 use crate::refine::{debiased_depth_targets, observed_offsets};
 use crate::shading::{
-    NormalPrior, ShadingImage, ShadingRefinement, ShadingSettings, ShadingView, own_normals,
-    refine_by_shading, shading_normals, surroundings,
+    NormalPrior, ShadingImage, ShadingRefinement, ShadingSettings, observe_shading, own_normals,
+    refine_by_shading,
 };
 use crate::tsdf::{
     TsdfVolume, default_truncation, default_voxel, drop_depth_edges, faces_ray,
@@ -1195,16 +1195,11 @@ fn lid_departure(
     if !lid.iter().any(|l| *l) {
         return Ok(None);
     }
-    let caster = MeshRaycaster::new(bound, "the masks' mesh")?;
-    let depths: Vec<Vec<f32>> = (masks.views.iter())
-        .map(|(c, _)| caster.render(c).depth)
-        .collect();
-    let views: Vec<ShadingView<'_>> = (masks.views.iter().zip(radiance).zip(&depths))
-        .map(|(((camera, mask), radiance), mesh_depth)| ShadingView {
+    let images: Vec<ShadingImage<'_>> = (masks.views.iter().zip(radiance))
+        .map(|((camera, mask), radiance)| ShadingImage {
             camera,
             radiance,
             mask: Some(mask),
-            mesh_depth,
         })
         .collect();
     let defaults = ShadingRefinement::default();
@@ -1212,8 +1207,14 @@ fn lid_departure(
         shrink: false,
         ..defaults.shading
     };
-    let around = surroundings(bound, defaults.surrounding_rays)?;
-    let fit = shading_normals(bound, &views, Some(&around), &settings)?;
+    let caster = MeshRaycaster::new(bound, "the masks' mesh")?;
+    let (fit, _) = observe_shading(
+        bound,
+        &caster,
+        &images,
+        &settings,
+        defaults.surrounding_rays,
+    )?;
     let own = own_normals(bound);
     let (mut over, mut rest) = (Vec::new(), Vec::new());
     for (f, on_lid) in lid.iter().enumerate() {

@@ -714,6 +714,15 @@ pub fn linear_radiance(rgb: &[f32], srgb: bool, channel: Option<usize>) -> Vec<f
         .collect()
 }
 
+/// A view's image as [`linear_radiance`] reads it (sRGB-decoded when the view is sRGB).
+pub fn view_radiance(view: &gtsr_data::View, channel: Option<usize>) -> Vec<f32> {
+    linear_radiance(
+        &view.rgb,
+        view.encoding == gtsr_data::Encoding::Srgb,
+        channel,
+    )
+}
+
 /// One view for [`refine_by_shading`].
 #[derive(Clone, Copy, Debug)]
 pub struct ShadingImage<'a> {
@@ -745,6 +754,38 @@ pub fn slack_anchor_scale(slack: &[f32], reference: f32, power: f32) -> Vec<f32>
             1.0 / (m * m)
         })
         .collect()
+}
+
+/// The shading normals of `mesh` in `images` ([`shading_normals`]): each image sees the faces
+/// that `caster` (built on `mesh`) hits first, and with `settings.interreflection` the light
+/// of the surroundings is modelled from `rays` rays a face. Also returns the casts' z-depths,
+/// one map per image.
+pub(crate) fn observe_shading(
+    mesh: &TriMesh,
+    caster: &crate::MeshRaycaster,
+    images: &[ShadingImage<'_>],
+    settings: &ShadingSettings,
+    rays: usize,
+) -> Result<(ShadingFit, Vec<Vec<f32>>)> {
+    let depths: Vec<Vec<f32>> = images
+        .iter()
+        .map(|v| caster.render(v.camera).depth)
+        .collect();
+    let views: Vec<ShadingView<'_>> = images
+        .iter()
+        .zip(&depths)
+        .map(|(v, d)| ShadingView {
+            camera: v.camera,
+            radiance: v.radiance,
+            mask: v.mask,
+            mesh_depth: d,
+        })
+        .collect();
+    let around = settings
+        .interreflection
+        .then(|| surroundings_cast(mesh, caster, rays));
+    let fit = shading_normals(mesh, &views, around.as_ref(), settings)?;
+    Ok((fit, depths))
 }
 
 /// Settings of [`refine_by_shading`].
@@ -915,25 +956,13 @@ pub fn refine_by_shading(
     // A round observes the normals on `on` (the last round's mesh) and refines `mesh` by them.
     let round = |on: &TriMesh| -> Result<(TriMesh, Vec<f32>, ShadingFit)> {
         let caster = crate::MeshRaycaster::new(on, "the mesh to refine")?;
-        let depths: Vec<Vec<f32>> = images
-            .iter()
-            .map(|v| caster.render(v.camera).depth)
-            .collect();
-        let views: Vec<ShadingView<'_>> = images
-            .iter()
-            .zip(&depths)
-            .map(|(v, d)| ShadingView {
-                camera: v.camera,
-                radiance: v.radiance,
-                mask: v.mask,
-                mesh_depth: d,
-            })
-            .collect();
-        let around = settings
-            .shading
-            .interreflection
-            .then(|| surroundings_cast(on, &caster, settings.surrounding_rays));
-        let fit = shading_normals(on, &views, around.as_ref(), &settings.shading)?;
+        let (fit, depths) = observe_shading(
+            on,
+            &caster,
+            images,
+            &settings.shading,
+            settings.surrounding_rays,
+        )?;
         let targets = match prior {
             Some(p) => {
                 // A prior view at an image's camera reads that image's ray cast.

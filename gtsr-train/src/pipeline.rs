@@ -358,10 +358,7 @@ fn native_masks(
     let radiance: Option<Vec<Vec<f32>>> = shading.then(|| {
         views
             .iter()
-            .map(|v| {
-                let srgb = v.encoding == gtsr_data::Encoding::Srgb;
-                gtsr_eval::shading::linear_radiance(&v.rgb, srgb, None)
-            })
+            .map(|v| gtsr_eval::shading::view_radiance(v, None))
             .collect()
     });
     let views = views

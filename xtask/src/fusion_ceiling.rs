@@ -19,7 +19,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use glam::Vec3;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
-use gtsr_eval::shading::linear_radiance;
+use gtsr_eval::shading::view_radiance;
 use gtsr_eval::tsdf::{
     DEPTH_ONLY_TRUNCATION_FOOTPRINTS, default_truncation, median_pixel_footprint,
 };
@@ -347,7 +347,7 @@ fn carve_rows(
     // Bounded by the hull of the masks' edges, as gtsr-train's default; scored against the
     // masks alone. With the images' radiance, for the carving's shading check.
     let radiance = (native.train.iter())
-        .map(|v| linear_radiance(&v.rgb, v.encoding == gtsr_data::Encoding::Srgb, None))
+        .map(|v| view_radiance(v, None))
         .collect();
     let alone = MasksAlone::new(masks.iter().map(|(c, m)| (*c, m.to_vec())).collect())?
         .context("empty masks")?

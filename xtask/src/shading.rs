@@ -20,8 +20,8 @@ use gtsr_data::ply::TriMesh;
 use gtsr_eval::mesh::face_centroid;
 use gtsr_eval::refine::{FaceNormals, NormalView, RefineSettings, observed_normals};
 use gtsr_eval::shading::{
-    ShadingFit, ShadingSettings, ShadingView, Surroundings, linear_radiance, own_normals,
-    shading_normals, surroundings,
+    ShadingFit, ShadingSettings, ShadingView, Surroundings, own_normals, shading_normals,
+    surroundings, view_radiance,
 };
 use gtsr_eval::tsdf::median_pixel_footprint;
 
@@ -411,7 +411,7 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
     let radiances: Vec<Vec<f32>> = scene
         .train
         .iter()
-        .map(|v| linear_radiance(&v.rgb, v.encoding == gtsr_data::Encoding::Srgb, channel))
+        .map(|v| view_radiance(v, channel))
         .collect();
     // Pixels of the object with a channel at the top of its range: their shading is clipped.
     let (mut object, mut clipped) = (0usize, 0usize);
