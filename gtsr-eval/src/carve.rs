@@ -50,6 +50,7 @@ use crate::error::{EvalError, Result};
 use crate::hull::{close_box, grid_dims, in_image, silhouette_distance};
 use crate::marching::{Grid, marching_cubes};
 use crate::mesh::largest_component;
+use rayon::prelude::*;
 
 /// The most views [`CarveSettings::min_views`] may ask for.
 pub const MAX_CARVE_VIEWS: usize = 16;
@@ -380,7 +381,7 @@ pub fn carve_grid(
     voxel: f32,
     settings: &CarveSettings,
 ) -> Result<Grid> {
-    Ok(carve_field(masks, depths, min, max, voxel, settings)?.0)
+    Ok(carve_field(masks, depths, min, max, voxel, settings)?.grid)
 }
 
 /// How many depth samples the concavity gate let vote, of how many ([`carve_field`]).
@@ -400,7 +401,7 @@ pub(crate) fn carve_field(
     max: Vec3,
     voxel: f32,
     settings: &CarveSettings,
-) -> Result<(Grid, Option<GateCount>)> {
+) -> Result<Carving> {
     settings.validate()?;
     let dims = grid_dims(masks, min, max, voxel)?;
     for (k, dm) in depths.iter().enumerate() {
@@ -446,20 +447,133 @@ pub(crate) fn carve_field(
     } else {
         Vec::new()
     };
-    let mut grid = Grid::from_fn(min, voxel, dims, |p| {
-        let Some(hull) = silhouette_distance(masks, p) else {
-            return voxel;
-        };
-        if hull >= 0.0 {
-            return hull;
-        }
-        match carve_at(depths, &steps, &open, p, settings) {
-            Some(c) => hull.max(c),
-            None => hull,
-        }
-    });
+    let mut grid = Grid::new(min, voxel, dims);
+    let plane = dims[0] * dims[1];
+    // Per plane of grid points, those the depth carved away, with the masks' own value.
+    let carved: Vec<Vec<(usize, f32)>> = (grid.values.par_chunks_mut(plane).enumerate())
+        .map(|(k, slice)| {
+            let mut carved = Vec::new();
+            for (n, value) in slice.iter_mut().enumerate() {
+                let (i, j) = (n % dims[0], n / dims[0]);
+                let p = min + voxel * Vec3::new(i as f32, j as f32, k as f32);
+                *value = match silhouette_distance(masks, p) {
+                    None => voxel,
+                    Some(hull) if hull >= 0.0 => hull,
+                    Some(hull) => match carve_at(depths, &steps, &open, p, settings) {
+                        Some(c) if c > 0.0 => {
+                            carved.push((k * plane + n, hull));
+                            c
+                        }
+                        _ => hull,
+                    },
+                };
+            }
+            carved
+        })
+        .collect();
+    grid.observed.fill(true);
     close_box(&mut grid, voxel);
-    Ok((grid, gate_count))
+    Ok(Carving {
+        grid,
+        carved: carved.into_iter().flatten().collect(),
+        gate: gate_count,
+    })
+}
+
+/// The carved field of [`carve_field`] and what the depth did to it.
+pub(crate) struct Carving {
+    /// The field handed to marching cubes (box faces closed).
+    pub grid: Grid,
+    /// The carved-away grid points (inside the masks' hull, raised to a positive field by
+    /// the depth), ascending, with the masks' own value there.
+    pub carved: Vec<(usize, f32)>,
+    /// What the concavity gate let vote, when there is a gate.
+    pub gate: Option<GateCount>,
+}
+
+impl Carving {
+    /// The carved-away regions: the 6-connected components of [`Carving::carved`], as a
+    /// label per point and the number of regions.
+    pub fn regions(&self) -> CarvedRegions {
+        let points: Vec<usize> = self.carved.iter().map(|(i, _)| *i).collect();
+        let [nx, ny, nz] = self.grid.dims;
+        let slot = |i: usize| points.binary_search(&i).ok();
+        let mut label = vec![u32::MAX; points.len()];
+        let mut count = 0u32;
+        let mut stack = Vec::new();
+        for seed in 0..points.len() {
+            if label[seed] != u32::MAX {
+                continue;
+            }
+            label[seed] = count;
+            stack.push(seed);
+            while let Some(s) = stack.pop() {
+                let i = points[s];
+                let (x, y, z) = (i % nx, (i / nx) % ny, i / (nx * ny));
+                let neighbours = [
+                    (x > 0).then(|| i - 1),
+                    (x + 1 < nx).then(|| i + 1),
+                    (y > 0).then(|| i - nx),
+                    (y + 1 < ny).then(|| i + nx),
+                    (z > 0).then(|| i - nx * ny),
+                    (z + 1 < nz).then(|| i + nx * ny),
+                ];
+                for n in neighbours.into_iter().flatten().filter_map(slot) {
+                    if label[n] == u32::MAX {
+                        label[n] = count;
+                        stack.push(n);
+                    }
+                }
+            }
+            count += 1;
+        }
+        CarvedRegions {
+            points,
+            label,
+            count: count as usize,
+        }
+    }
+
+    /// The field with the masks' own value restored over the regions `refused` marks (by
+    /// label of `regions`): those regions are not carved, and the surface over them is the
+    /// masks' again.
+    pub fn restored(&self, regions: &CarvedRegions, refused: &[bool]) -> Grid {
+        let mut grid = self.grid.clone();
+        for (&(i, hull), label) in self.carved.iter().zip(&regions.label) {
+            if refused[*label as usize] {
+                grid.values[i] = hull;
+            }
+        }
+        close_box(&mut grid, self.grid.voxel);
+        grid
+    }
+}
+
+/// The carved-away regions of a [`Carving`] ([`Carving::regions`]).
+pub(crate) struct CarvedRegions {
+    /// The carved-away grid points, ascending.
+    pub points: Vec<usize>,
+    /// Each point's region.
+    pub label: Vec<u32>,
+    /// How many regions.
+    pub count: usize,
+}
+
+impl CarvedRegions {
+    /// The region of the carved-away grid point nearest `p`, if that point is one.
+    pub fn at(&self, grid: &Grid, p: Vec3) -> Option<u32> {
+        let g = (p - grid.origin) / grid.voxel;
+        let [nx, ny, nz] = grid.dims;
+        let (x, y, z) = (g.x.round(), g.y.round(), g.z.round());
+        if !(x >= 0.0 && y >= 0.0 && z >= 0.0) {
+            return None;
+        }
+        let (x, y, z) = (x as usize, y as usize, z as usize);
+        if x >= nx || y >= ny || z >= nz {
+            return None;
+        }
+        (self.points.binary_search(&(x + nx * (y + ny * z))).ok()).map(|s| self.label[s])
+    }
 }
 
 /// [`carve_grid`] through marching cubes, the largest component: closed and outward oriented.
@@ -471,20 +585,8 @@ pub fn carve_mesh(
     voxel: f32,
     settings: &CarveSettings,
 ) -> Result<TriMesh> {
-    Ok(carve_mesh_counted(masks, depths, min, max, voxel, settings)?.0)
-}
-
-/// [`carve_mesh`], and what [`carve_field`] counted of the gate.
-pub(crate) fn carve_mesh_counted(
-    masks: &[(Camera, &[f32])],
-    depths: &[DepthMap],
-    min: Vec3,
-    max: Vec3,
-    voxel: f32,
-    settings: &CarveSettings,
-) -> Result<(TriMesh, Option<GateCount>)> {
-    let (grid, count) = carve_field(masks, depths, min, max, voxel, settings)?;
-    Ok((largest_component(&marching_cubes(&grid, 0.0)), count))
+    let carving = carve_field(masks, depths, min, max, voxel, settings)?;
+    Ok(largest_component(&marching_cubes(&carving.grid, 0.0)))
 }
 
 #[cfg(test)]

@@ -16,11 +16,12 @@ use gtsr_data::ply::TriMesh;
 use serde::{Deserialize, Serialize};
 
 use crate::carve::{
-    CarveSettings, DepthMap, MAX_CARVE_VIEWS, carve_mesh_counted, debias_depth, hull_offset,
+    CarveSettings, CarvedRegions, DepthMap, MAX_CARVE_VIEWS, carve_field, debias_depth, hull_offset,
 };
 use crate::consistency::{ConsistencySettings, DepthView, filter_consistent};
 use crate::depth::MeshRaycaster;
 use crate::error::{EvalError, Result};
+use crate::marching::{Grid, marching_cubes};
 use crate::mesh::face_centroid;
 use crate::mesh::largest_component;
 use crate::metrics::SignedDistance;
@@ -246,7 +247,10 @@ pub struct MeshConfig {
     /// volume than elsewhere. The departure is the median angle between the shading normals
     /// and the bound's own, over the bound's faces that lie above the carved volume and over
     /// the others; at or below this ratio the carving is refused and the bound goes on alone.
-    /// Over a concavity the masks cannot see, the bound is a lid whose pixels show the
+    /// Each carved region (a connected part of the carved volume) is judged so by the part of
+    /// the lid above it, where the shading solves any of it, and the others by the whole lid:
+    /// a carving that took a true concavity and a wrong dent keeps the one and loses the
+    /// other. Over a concavity the masks cannot see, the bound is a lid whose pixels show the
     /// concavity's shading, which no normal of the lid explains. Over a dent that the depth
     /// holds and the images do not (a model stopped mid-schedule, alike in every view that
     /// sees it, so that it passes the other checks), the shading finds the bound to be the
@@ -1047,9 +1051,9 @@ fn carving_bound<'a>(
 /// inside the masks' bound where the concavity gate lets them, and the walls no map observes
 /// are culled. The carving is refused (the bound instead) when the maps are not a surface
 /// yet: their `offset` quartiles from the bound ([`hull_offset`]) spread wider than
-/// [`MeshConfig::carve_max_spread`], the carved mesh opens the silhouettes, or the images'
-/// shading finds the bound over the carved volume to be the surface
-/// ([`MeshConfig::carve_min_lid_departure`]).
+/// [`MeshConfig::carve_max_spread`], or the carved mesh opens the silhouettes; the images'
+/// shading refuses each carved region over which it finds the bound to be the surface
+/// ([`MeshConfig::carve_min_lid_departure`]), and the bound is restored there.
 fn carve_inside_bound(
     config: &MeshConfig,
     inputs: &FusionInputs,
@@ -1089,33 +1093,15 @@ fn carve_inside_bound(
     );
     let voxel = config.carve_voxel.unwrap_or(masks.voxel);
     let carve = config.carve();
-    let (mut carved, gate) = carve_mesh_counted(&bound, &depths, lo, hi, voxel, &carve)?;
-    if let Some(g) = gate {
+    let carving = carve_field(&bound, &depths, lo, hi, voxel, &carve)?;
+    if let Some(g) = carving.gate {
         notes.push(format!(
             "concavity gate: {} of {} depth samples lie more than {} footprints behind the \
              masks' hull",
             g.open, g.samples, carve.concavity_gate
         ));
     }
-    if config.cull_unobserved > 0.0 {
-        // Only the carving's own walls (off the masks' mesh) must be seen by a depth map.
-        let hull = SignedDistance::new(bound_mesh, "the masks' mesh")?;
-        let walls: Vec<bool> = carved
-            .triangles
-            .par_iter()
-            .map(|t| hull.query(face_centroid(&carved, *t)).0.abs() > masks.voxel)
-            .collect();
-        let seen = faces_observed_among(&carved, &depths, config.cull_unobserved, &walls)?;
-        let keep: Vec<bool> = walls.iter().zip(&seen).map(|(w, s)| !w || *s).collect();
-        let before = carved.triangles.len();
-        carved = faces_kept(&carved, &keep, "the culling left no face")?;
-        notes.push(format!(
-            "culled {} of {before} faces: carved walls no depth map observes within {} \
-             footprints",
-            before - carved.triangles.len(),
-            config.cull_unobserved
-        ));
-    }
+    let carved = culled_carving(config, masks, bound_mesh, &depths, &carving.grid, notes)?;
     if config.carve_max_opened < 1.0 {
         let opened = opened_silhouettes(&carved, inputs.views, hull_maps)?;
         let share = opened.share();
@@ -1138,36 +1124,96 @@ fn carve_inside_bound(
         }
     }
     let t0 = std::time::Instant::now();
-    if config.carve_min_lid_departure > 0.0
-        && let Some(radiance) = &masks.radiance
-        && let Some(d) = lid_departure(bound_mesh, &carved, masks, radiance)?
-    {
+    let ratio = config.carve_min_lid_departure;
+    let Some(radiance) = masks.radiance.as_ref().filter(|_| ratio > 0.0) else {
+        return Ok(carved);
+    };
+    let regions = carving.regions();
+    let Some(d) = lid_departure(
+        bound_mesh,
+        &carved,
+        masks,
+        radiance,
+        &carving.grid,
+        &regions,
+    )?
+    else {
+        return Ok(carved);
+    };
+    notes.push(format!(
+        "carving: the images' shading departs {:.1} deg (median) from the masks' bound over the \
+         carved volume ({} faces solved), {:.1} deg elsewhere ({} faces) ({:.1} s)",
+        d.lid,
+        d.lid_solved,
+        d.rest,
+        d.rest_solved,
+        t0.elapsed().as_secs_f64()
+    ));
+    // Each region is judged by its own lid where the shading solves it, the others by the
+    // whole lid.
+    let whole_refused = d.lid <= ratio * d.rest;
+    let region_refused: Vec<bool> = (d.regions.iter())
+        .map(|r| r.map_or(whole_refused, |(median, _)| median <= ratio * d.rest))
+        .collect();
+    let judged = d.regions.iter().filter(|r| r.is_some()).count();
+    let refused_count = region_refused.iter().filter(|r| **r).count();
+    if regions.count > 1 {
         notes.push(format!(
-            "carving: the images' shading departs {:.1} deg (median) from the masks' bound over \
-             the carved volume ({} faces solved), {:.1} deg elsewhere ({} faces) ({:.1} s)",
-            d.lid,
-            d.lid_solved,
-            d.rest,
-            d.rest_solved,
-            t0.elapsed().as_secs_f64()
+            "carving: {} carved regions, {judged} judged by the shading over them (the others \
+             by the whole lid): {refused_count} refused",
+            regions.count
         ));
-        if d.lid <= config.carve_min_lid_departure * d.rest {
-            return refused(
-                notes,
-                format!(
-                    "the images' shading finds the masks' bound over the carved volume no less \
-                     the surface than elsewhere (mesh.carve_min_lid_departure {})",
-                    config.carve_min_lid_departure
-                ),
-            );
-        }
     }
-    Ok(carved)
+    if refused_count == regions.count {
+        return refused(
+            notes,
+            format!(
+                "the images' shading finds the masks' bound over the carved volume no less the \
+                 surface than elsewhere (mesh.carve_min_lid_departure {ratio})"
+            ),
+        );
+    }
+    if refused_count == 0 {
+        return Ok(carved);
+    }
+    let kept = carving.restored(&regions, &region_refused);
+    culled_carving(config, masks, bound_mesh, &depths, &kept, notes)
+}
+
+/// The mesh of a carved field: marching cubes, the largest component, and without the
+/// carving's walls that no depth map observes ([`MeshConfig::cull_unobserved`]).
+fn culled_carving(
+    config: &MeshConfig,
+    masks: &MasksAlone,
+    bound_mesh: &TriMesh,
+    depths: &[DepthMap],
+    grid: &Grid,
+    notes: &mut Vec<String>,
+) -> Result<TriMesh> {
+    let carved = largest_component(&marching_cubes(grid, 0.0));
+    if config.cull_unobserved <= 0.0 {
+        return Ok(carved);
+    }
+    // Only the carving's own walls (off the masks' mesh) must be seen by a depth map.
+    let hull = SignedDistance::new(bound_mesh, "the masks' mesh")?;
+    let walls: Vec<bool> = (carved.triangles.par_iter())
+        .map(|t| hull.query(face_centroid(&carved, *t)).0.abs() > masks.voxel)
+        .collect();
+    let seen = faces_observed_among(&carved, depths, config.cull_unobserved, &walls)?;
+    let keep: Vec<bool> = walls.iter().zip(&seen).map(|(w, s)| !w || *s).collect();
+    let kept = faces_kept(&carved, &keep, "the culling left no face")?;
+    notes.push(format!(
+        "culled {} of {} faces: carved walls no depth map observes within {} footprints",
+        carved.triangles.len() - kept.triangles.len(),
+        carved.triangles.len(),
+        config.cull_unobserved
+    ));
+    Ok(kept)
 }
 
 /// How far the images' shading normals lie from the masks' bound ([`lid_departure`]), in
 /// degrees.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 struct LidDeparture {
     /// Median over the solved faces of the bound that lie above the carved volume.
     lid: f32,
@@ -1175,18 +1221,25 @@ struct LidDeparture {
     /// Median over the bound's other solved faces.
     rest: f32,
     rest_solved: usize,
+    /// Per carved region, the median over the solved lid faces above it and how many, where
+    /// there are any.
+    regions: Vec<Option<(f32, usize)>>,
 }
 
 /// The departure of the images' shading normals from the faces of `bound` (the masks' mesh)
 /// that lie more than the masks' voxel from `carved` (the lid over what the carving took
-/// away), and from its other faces; the normals solved as the shading refinement solves them
-/// (the interreflection modelled), without shrinking them towards the faces' own. `None` when
-/// the carving took nothing away or the shading solves no face of the lid or none elsewhere.
+/// away), over the whole lid and over the part above each carved region (the region of the
+/// first carved-away grid point within three voxels under the face), and from its other
+/// faces; the normals solved as the shading refinement solves them (the interreflection
+/// modelled), without shrinking them towards the faces' own. `None` when the carving took
+/// nothing away or the shading solves no face of the lid or none elsewhere.
 fn lid_departure(
     bound: &TriMesh,
     carved: &TriMesh,
     masks: &MasksAlone,
     radiance: &[Vec<f32>],
+    grid: &Grid,
+    regions: &CarvedRegions,
 ) -> Result<Option<LidDeparture>> {
     let carved_distance = SignedDistance::new(carved, "the carved mesh")?;
     let lid: Vec<bool> = (bound.triangles.par_iter())
@@ -1217,6 +1270,7 @@ fn lid_departure(
     )?;
     let own = own_normals(bound);
     let (mut over, mut rest) = (Vec::new(), Vec::new());
+    let mut by_region = vec![Vec::new(); regions.count];
     for (f, on_lid) in lid.iter().enumerate() {
         if fit.normals.weight[f] <= 0.0 {
             continue;
@@ -1225,7 +1279,18 @@ fn lid_departure(
             .clamp(-1.0, 1.0)
             .acos()
             .to_degrees();
-        if *on_lid { &mut over } else { &mut rest }.push(angle);
+        if !*on_lid {
+            rest.push(angle);
+            continue;
+        }
+        over.push(angle);
+        let centroid = face_centroid(bound, bound.triangles[f]);
+        let region = (1..=6)
+            .map(|half| centroid - own.normal[f] * (0.5 * half as f32 * grid.voxel))
+            .find_map(|p| regions.at(grid, p));
+        if let Some(r) = region {
+            by_region[r as usize].push(angle);
+        }
     }
     let median = |v: &mut Vec<f32>| {
         v.sort_by(f32::total_cmp);
@@ -1239,6 +1304,9 @@ fn lid_departure(
         lid_solved: over.len(),
         rest: rest_median,
         rest_solved: rest.len(),
+        regions: (by_region.iter_mut())
+            .map(|v| median(v).map(|m| (m, v.len())))
+            .collect(),
     }))
 }
 
@@ -1983,15 +2051,45 @@ mod tests {
     }
 
     /// A sphere of `radius` with a smooth dent `depth` deep in its cap within 25 degrees of
-    /// the -y pole (the masks see it down to the plane of its rim only).
-    fn dented_sphere(radius: f32, depth: f32) -> TriMesh {
+    /// each of the `poles` (unit; the masks see a dent down to the plane of its rim only).
+    fn dented_sphere(radius: f32, depth: f32, poles: &[Vec3]) -> TriMesh {
         let mut m = crate::mesh::icosphere(Vec3::ZERO, radius, 5);
         let c0 = 25f32.to_radians().cos();
         for p in &mut m.positions {
-            let t = ((-p.y / p.length() - c0) / (1.0 - c0)).clamp(0.0, 1.0);
-            *p *= 1.0 - depth * t * t * (3.0 - 2.0 * t) / radius;
+            let dir = *p / p.length();
+            for pole in poles {
+                let t = ((dir.dot(*pole) - c0) / (1.0 - c0)).clamp(0.0, 1.0);
+                *p *= 1.0 - depth * t * t * (3.0 - 2.0 * t) / radius;
+            }
         }
         m
+    }
+
+    /// The carving (no shading refinement, voxel 0.03, `min_lid` for
+    /// [`MeshConfig::carve_min_lid_departure`]) of the masks and radiance of `images` by the
+    /// depth of `depth`: the mesh, the masks' bound and the notes.
+    fn lit_extract(
+        images: &[MeshView],
+        depth: &[MeshView],
+        min_lid: f32,
+    ) -> (TriMesh, TriMesh, Vec<String>) {
+        let masks = (images.iter())
+            .map(|v| (v.camera, v.mask.clone()))
+            .collect();
+        let masks = MasksAlone::new(masks)
+            .unwrap()
+            .expect("a sphere")
+            .with_radiance(images.iter().map(|v| v.radiance.clone()).collect())
+            .unwrap();
+        let maps: Vec<Vec<f32>> = depth.iter().map(|v| v.depth.clone()).collect();
+        let config = MeshConfig {
+            carve_voxel: Some(0.03),
+            shading_anchor: 0.0,
+            carve_min_lid_departure: min_lid,
+            ..MeshConfig::default()
+        };
+        let (mesh, notes) = sphere_extract(&masks, &maps, &config);
+        (mesh, masks.bound_mesh().clone(), notes)
     }
 
     /// A dent that the depth maps hold alike in every view and the images do not show (a
@@ -2003,31 +2101,13 @@ mod tests {
     fn a_dent_the_images_do_not_show_is_refused_by_the_shading() {
         let (radius, size) = (0.8, 64);
         let footprint = 0.5 * sphere_footprint_32();
-        let dent = dented_sphere(radius, 6.0 * footprint);
+        let dent = dented_sphere(radius, 6.0 * footprint, &[Vec3::NEG_Y]);
         let round = crate::mesh::icosphere(Vec3::ZERO, radius, 5);
         let dented_views = mesh_views(&dent, 24, size);
         let round_views = mesh_views(&round, 24, size);
         // The images (masks, radiance) of one object, the depth of the dented one.
-        let extract = |images: &[MeshView], min_lid: f32| {
-            let masks = (images.iter())
-                .map(|v| (v.camera, v.mask.clone()))
-                .collect();
-            let masks = MasksAlone::new(masks)
-                .unwrap()
-                .expect("a sphere")
-                .with_radiance(images.iter().map(|v| v.radiance.clone()).collect())
-                .unwrap();
-            let maps: Vec<Vec<f32>> = dented_views.iter().map(|v| v.depth.clone()).collect();
-            let config = MeshConfig {
-                carve_voxel: Some(0.03),
-                shading_anchor: 0.0,
-                carve_min_lid_departure: min_lid,
-                ..MeshConfig::default()
-            };
-            let (mesh, notes) = sphere_extract(&masks, &maps, &config);
-            let bound = masks.bound_mesh().clone();
-            (mesh, bound, notes)
-        };
+        let extract =
+            |images: &[MeshView], min_lid: f32| lit_extract(images, &dented_views, min_lid);
         let refused = |notes: &[String]| notes.iter().any(|n| n.starts_with("carving refused"));
         let by_shading = |notes: &[String]| {
             (notes.iter()).any(|n| n.starts_with("carving refused: the images' shading"))
@@ -2058,6 +2138,48 @@ mod tests {
             ..MeshConfig::default()
         };
         assert!(bad.validate().is_err());
+    }
+
+    /// A carving of two dents, of which the images show one (a true concavity and a model's
+    /// wrong dent at once): the shading judges each carved region by the lid over it, keeps
+    /// the true one and restores the bound over the other.
+    #[test]
+    fn the_shading_judges_each_carved_region_by_its_own_lid() {
+        let (radius, size) = (0.8, 64);
+        let footprint = 0.5 * sphere_footprint_32();
+        let shown = mesh_views(
+            &dented_sphere(radius, 6.0 * footprint, &[Vec3::NEG_Y]),
+            24,
+            size,
+        );
+        let depth = mesh_views(
+            &dented_sphere(radius, 6.0 * footprint, &[Vec3::NEG_Y, Vec3::Y]),
+            24,
+            size,
+        );
+        let (mesh, _, notes) = lit_extract(&shown, &depth, DEFAULT_CARVE_MIN_LID_DEPARTURE);
+        assert!(
+            !notes.iter().any(|n| n.starts_with("carving refused")),
+            "{notes:?}"
+        );
+        assert!(
+            notes
+                .iter()
+                .any(|n| n.contains("2 carved regions, 2 judged") && n.ends_with("1 refused")),
+            "{notes:?}"
+        );
+        // Vertices dug in under each pole's cap.
+        let dug = |pole: Vec3| {
+            (mesh.positions.iter())
+                .filter(|p| p.length() < radius - 2.0 * footprint && p.dot(pole) > 0.0)
+                .count()
+        };
+        assert!(
+            dug(Vec3::NEG_Y) > 20,
+            "{} dug in; {notes:?}",
+            dug(Vec3::NEG_Y)
+        );
+        assert_eq!(dug(Vec3::Y), 0, "{notes:?}");
     }
 
     /// The radiance given for the shading refinement must match the masks view for view.
