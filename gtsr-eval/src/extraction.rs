@@ -1129,6 +1129,9 @@ fn carve_inside_bound(
         return Ok(carved);
     };
     let regions = carving.regions();
+    if regions.count == 0 {
+        return Ok(carved);
+    }
     let Some(d) = lid_departure(
         bound_mesh,
         &carved,
