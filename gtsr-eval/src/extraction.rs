@@ -640,6 +640,21 @@ impl MasksAlone {
         Ok(self)
     }
 
+    /// Each view's camera, radiance and mask as the shading reads them
+    /// ([`crate::shading::refine_by_shading`]); `None` without [`MasksAlone::radiance`].
+    pub(crate) fn shading_images(&self) -> Option<Vec<ShadingImage<'_>>> {
+        let radiance = self.radiance.as_ref()?;
+        Some(
+            (self.views.iter().zip(radiance))
+                .map(|((camera, mask), radiance)| ShadingImage {
+                    camera,
+                    radiance,
+                    mask: Some(mask),
+                })
+                .collect(),
+        )
+    }
+
     /// With the hull of the masks' edges ([`EdgeHull`]), which then bounds the extraction
     /// ([`MasksAlone::bound`], [`MasksAlone::bound_mesh`]); [`MasksAlone::mesh`] stays the
     /// baseline. The masks are read with the profile their edges' width says
@@ -887,7 +902,7 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
             carve_inside_bound(config, inputs, masks, &maps, &hull_maps, offset, &mut notes)?;
         if config.shading_anchor > 0.0
             && !inputs.coarse
-            && let Some(radiance) = &masks.radiance
+            && let Some(images) = masks.shading_images()
         {
             let depth = (config.shading_depth > 0.0).then_some(DepthFrom {
                 views: inputs.views,
@@ -903,7 +918,7 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
                 views: &rendered,
                 share,
             });
-            mesh = shading_refined(mesh, masks, radiance, depth, prior, config, &mut notes)?;
+            mesh = shading_refined(mesh, masks, &images, depth, prior, config, &mut notes)?;
         }
         return Ok((mesh, notes));
     }
@@ -1125,21 +1140,14 @@ fn carve_inside_bound(
     }
     let t0 = std::time::Instant::now();
     let ratio = config.carve_min_lid_departure;
-    let Some(radiance) = masks.radiance.as_ref().filter(|_| ratio > 0.0) else {
+    let Some(images) = masks.shading_images().filter(|_| ratio > 0.0) else {
         return Ok(carved);
     };
     let regions = carving.regions();
     if regions.count == 0 {
         return Ok(carved);
     }
-    let Some(d) = lid_departure(
-        bound_mesh,
-        &carved,
-        masks,
-        radiance,
-        &carving.grid,
-        &regions,
-    )?
+    let Some(d) = lid_departure(bound_mesh, &carved, masks, &images, &carving.grid, &regions)?
     else {
         return Ok(carved);
     };
@@ -1240,7 +1248,7 @@ fn lid_departure(
     bound: &TriMesh,
     carved: &TriMesh,
     masks: &MasksAlone,
-    radiance: &[Vec<f32>],
+    images: &[ShadingImage<'_>],
     grid: &Grid,
     regions: &CarvedRegions,
 ) -> Result<Option<LidDeparture>> {
@@ -1251,26 +1259,13 @@ fn lid_departure(
     if !lid.iter().any(|l| *l) {
         return Ok(None);
     }
-    let images: Vec<ShadingImage<'_>> = (masks.views.iter().zip(radiance))
-        .map(|((camera, mask), radiance)| ShadingImage {
-            camera,
-            radiance,
-            mask: Some(mask),
-        })
-        .collect();
     let defaults = ShadingRefinement::default();
     let settings = ShadingSettings {
         shrink: false,
         ..defaults.shading
     };
     let caster = MeshRaycaster::new(bound, "the masks' mesh")?;
-    let (fit, _) = observe_shading(
-        bound,
-        &caster,
-        &images,
-        &settings,
-        defaults.surrounding_rays,
-    )?;
+    let (fit, _) = observe_shading(bound, &caster, images, &settings, defaults.surrounding_rays)?;
     let own = own_normals(bound);
     let (mut over, mut rest) = (Vec::new(), Vec::new());
     let mut by_region = vec![Vec::new(); regions.count];
@@ -1322,7 +1317,7 @@ fn lid_departure(
 fn shading_refined(
     mesh: TriMesh,
     masks: &MasksAlone,
-    radiance: &[Vec<f32>],
+    images: &[ShadingImage<'_>],
     depth: Option<DepthFrom<'_>>,
     prior: Option<NormalPrior<'_>>,
     config: &MeshConfig,
@@ -1333,16 +1328,6 @@ fn shading_refined(
     let (lo, hi) = mesh.bounds();
     let cameras: Vec<Camera> = masks.views.iter().map(|(c, _)| *c).collect();
     let footprint = median_pixel_footprint(&cameras, 0.5 * (lo + hi));
-    let images: Vec<ShadingImage<'_>> = masks
-        .views
-        .iter()
-        .zip(radiance)
-        .map(|((camera, mask), radiance)| ShadingImage {
-            camera,
-            radiance,
-            mask: Some(mask),
-        })
-        .collect();
     let defaults = ShadingRefinement::default();
     let settings = ShadingRefinement {
         anchor: anchor * footprint,
@@ -1399,7 +1384,7 @@ fn shading_refined(
         }
         None => None,
     };
-    let refined = refine_by_shading(&mesh, &images, targets.as_ref(), prior, &settings)?;
+    let refined = refine_by_shading(&mesh, images, targets.as_ref(), prior, &settings)?;
     if let Some(p) = prior {
         notes.push(format!(
             "shading refinement: {:.0} % of each face's normal from the rendered normal maps",
