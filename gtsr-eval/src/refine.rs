@@ -4,10 +4,12 @@
 //! [`crate::shading`]), optionally pulled towards offsets observed in depth maps
 //! ([`observed_offsets`]).
 //!
-//! Displacing the vertices of a face by `d_k` along its normal `N` tilts the normal by the
-//! in-plane gradient of the linear interpolant of `d` (to first order, `N' = N - grad d`). So
-//! the displacements that make the normals `n*` are those whose gradient is `-t`, with `t` the
-//! part of `n*` tangent to the face: a Poisson problem on the mesh,
+//! Displacing the vertices of a face by `d_k` along its normal `N` turns the normal to
+//! `N' ~ N - grad d`, with `grad d` the in-plane gradient of the linear interpolant of `d`
+//! (exact for one flat face). So the displacements that make the normals `n*` are those whose
+//! gradient is `-t`, with `t = (n* - (n* . N) N) / (n* . N)` the slope of `n*` over the face
+//! (the tangent of its tilt, not the sine, which falls short on steep walls): a Poisson
+//! problem on the mesh,
 //!
 //! `min_d  sum_f w_f A_f |grad_f d + t_f|^2 + mu sum_i m_i d_i^2,   d_i <= c`,
 //!
@@ -24,6 +26,9 @@ use gtsr_data::ply::TriMesh;
 
 use crate::error::{EvalError, Result};
 
+/// The default of [`RefineSettings::max_tilt`]: 30 degrees.
+pub const MAX_TILT_SINE: f32 = 0.5;
+
 /// Settings of [`refine_with_normals`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RefineSettings {
@@ -34,7 +39,8 @@ pub struct RefineSettings {
     pub max_depth: f32,
     /// The farthest a vertex may move outward (scene units; 0: inward only).
     pub max_outward: f32,
-    /// The largest tangential correction per face (the sine of the largest tilt trusted).
+    /// The sine of the largest tilt of a target normal from its face that is trusted: a
+    /// steeper target is taken at this tilt.
     pub max_tilt: f32,
     /// Conjugate-gradient iterations per solve.
     pub iterations: usize,
@@ -48,7 +54,7 @@ impl Default for RefineSettings {
             anchor: 0.1,
             max_depth: 0.2,
             max_outward: 0.0,
-            max_tilt: 0.5,
+            max_tilt: MAX_TILT_SINE,
             iterations: 400,
             rounds: 8,
         }
@@ -386,9 +392,14 @@ pub fn refine_anchored(
             targets.weight.len()
         )));
     }
-    if !(settings.anchor > 0.0 && settings.max_depth > 0.0 && settings.max_tilt > 0.0) {
+    if !(settings.anchor > 0.0
+        && settings.max_depth > 0.0
+        && settings.max_tilt > 0.0
+        && settings.max_tilt < 1.0)
+    {
         return Err(EvalError::InvalidArgument(
-            "refine settings: anchor, max_depth and max_tilt must be positive".into(),
+            "refine settings: anchor and max_depth must be positive, max_tilt (a sine) in (0, 1)"
+                .into(),
         ));
     }
     let geo = face_geometry(mesh);
@@ -404,7 +415,7 @@ pub fn refine_anchored(
     for n in vn.iter_mut() {
         *n = n.normalize_or_zero();
     }
-    // Face weights and tangential targets.
+    // Face weights and target slopes.
     let mut wf = vec![1.0f32; nf];
     let mut tf = vec![Vec3::ZERO; nf];
     for f in 0..nf {
@@ -412,15 +423,16 @@ pub fn refine_anchored(
         let w = targets.weight[f];
         if w > 0.0 {
             let s = targets.normal[f];
-            let mut t = s - s.dot(n) * n;
-            let l = t.length();
-            if l > settings.max_tilt {
-                t *= settings.max_tilt / l;
-            }
-            if s.dot(n) <= 0.0 {
-                t = Vec3::ZERO;
-            }
-            tf[f] = t;
+            let t = s - s.dot(n) * n;
+            // The slope that tilts the face to `s`: tan of the tilt, at most the largest
+            // trusted; none for a target facing away.
+            let sine = t.length();
+            tf[f] = if s.dot(n) > 0.0 && sine > 0.0 {
+                let trusted = sine.min(settings.max_tilt);
+                t * (trusted / (1.0 - trusted * trusted).max(1e-6).sqrt() / sine)
+            } else {
+                Vec3::ZERO
+            };
             wf[f] = w;
         }
     }
@@ -656,6 +668,47 @@ mod tests {
         };
         let (_, d) = refine_with_normals(&mesh, &flat, &settings).unwrap();
         assert!(d.iter().all(|v| v.abs() < 1e-6));
+    }
+
+    #[test]
+    fn a_steep_bowl_is_carved_by_the_slopes_of_its_normals() {
+        // The bowl `z = -0.5 (1 - r^2)`, whose wall tilts up to 45 degrees at the rim: a
+        // normal tilted by `a` asks for the slope `tan a` (`r` here), more than its sine.
+        let mesh = grid(60);
+        let normal: Vec<Vec3> = (mesh.triangles.iter())
+            .map(|t| {
+                let c = t.map(|i| mesh.positions[i as usize]).iter().sum::<Vec3>() / 3.0;
+                if c.x * c.x + c.y * c.y < 1.0 {
+                    Vec3::new(-c.x, -c.y, 1.0).normalize()
+                } else {
+                    Vec3::Z
+                }
+            })
+            .collect();
+        let targets = FaceNormals {
+            weight: vec![1.0; normal.len()],
+            normal,
+        };
+        let centre = |settings: &RefineSettings| {
+            let (_, d) = refine_with_normals(&mesh, &targets, settings).unwrap();
+            d[30 * 61 + 30]
+        };
+        // Trusted up to 60 degrees: the whole depth (the sines would give sqrt(2) - 1).
+        let steep = RefineSettings {
+            anchor: 10.0,
+            max_depth: 1.0,
+            max_tilt: 0.866,
+            ..RefineSettings::default()
+        };
+        let d = centre(&steep);
+        assert!((d + 0.5).abs() < 0.02, "centre moved {d}");
+        // At the default 30 degrees the slope stops at tan 30 from r = 0.577 on: the depth
+        // is 0.577^2 / 2 + 0.577 (1 - 0.577) = 0.411 (the capped sines would give 0.366).
+        let d = centre(&RefineSettings {
+            max_tilt: MAX_TILT_SINE,
+            ..steep
+        });
+        assert!((d + 0.411).abs() < 0.02, "centre moved {d}");
     }
 
     #[test]
