@@ -6,6 +6,7 @@ mod diagnose_surface;
 mod fusion_ceiling;
 mod gen_scene;
 mod shading;
+mod shading_depth;
 mod stability;
 
 use clap::{Parser, Subcommand};

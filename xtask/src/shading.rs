@@ -124,6 +124,15 @@ pub struct ShadingStereoArgs {
     /// Write the last refined mesh of the first anchor here.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Instead of refining: search each face whose slack reaches
+    /// `--depth-search-min-slack` along its inward normal, up to this many footprints, for
+    /// the depth whose readings one Lambertian normal fits best, and compare it with the
+    /// truth's (`crate::shading_depth`; 0: off).
+    #[arg(long, default_value_t = 0.0)]
+    pub depth_search: f32,
+    /// With `--depth-search`: the least slack (footprints) of a searched face.
+    #[arg(long, default_value_t = 2.0)]
+    pub depth_search_min_slack: f32,
 }
 
 /// Which of an image's channels [`shading_normals`] reads.
@@ -583,6 +592,9 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
             );
         }
     }
+    if args.depth_search > 0.0 {
+        return depth_search(args, &scene, &hull, gt.as_ref(), &radiances, footprint);
+    }
     let slack_scale: Option<Vec<f32>> = (args.slack_power > 0.0)
         .then(|| gtsr_eval::shading::slack_anchor_scale(&slack, args.slack_ref, args.slack_power));
     println!(
@@ -777,6 +789,104 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
             gtsr_data::ply::write_ply(out, &mesh)
                 .with_context(|| format!("writing {}", out.display()))?;
         }
+    }
+    Ok(())
+}
+
+/// `--depth-search`: the search of [`crate::shading_depth`] over the masks' mesh, scored
+/// against the truth's depth along each face's normal where the scene has one.
+fn depth_search(
+    args: &ShadingStereoArgs,
+    scene: &gtsr_data::Scene,
+    hull: &TriMesh,
+    gt: Option<&TriMesh>,
+    radiances: &[Vec<f32>],
+    footprint: f32,
+) -> Result<()> {
+    use crate::shading_depth::{SearchSettings, SearchView, search};
+    let t0 = std::time::Instant::now();
+    let caster = gtsr_eval::MeshRaycaster::new(hull, "the masks' mesh")?;
+    let depths: Vec<Vec<f32>> = (scene.train.iter())
+        .map(|v| caster.render(&v.camera).depth)
+        .collect();
+    let views: Vec<SearchView<'_>> = (scene.train.iter().zip(radiances).zip(&depths))
+        .map(|((v, r), d)| SearchView {
+            camera: &v.camera,
+            radiance: r,
+            mask: v.mask.as_deref(),
+            mesh_depth: d,
+        })
+        .collect();
+    let mask_views: Vec<(Camera, &[f32])> = (scene.train.iter())
+        .filter_map(|v| v.mask.as_deref().map(|m| (v.camera, m)))
+        .collect();
+    let centroids: Vec<Vec3> = (hull.triangles.iter())
+        .map(|t| face_centroid(hull, *t))
+        .collect();
+    let max = args.depth_search.max(args.depth_search_min_slack);
+    let face_slack: Vec<f32> =
+        gtsr_eval::hull_slack(&mask_views, &centroids, 0.25 * footprint, max * footprint)?
+            .iter()
+            .map(|s| s / footprint)
+            .collect();
+    let settings = SearchSettings {
+        max_depth: args.depth_search,
+        min_slack: args.depth_search_min_slack,
+        min_cos: args.min_cos,
+        min_views: args.min_views,
+        footprint,
+    };
+    let found = search(hull, &views, &face_slack, &settings);
+    println!(
+        "depth search: {} faces with a slack of at least {} footprints searched ({:.1} s)",
+        found.len(),
+        args.depth_search_min_slack,
+        t0.elapsed().as_secs_f64()
+    );
+    let Some(gt) = gt else {
+        return Ok(());
+    };
+    let truth = gtsr_eval::MeshRaycaster::new(gt, "ground-truth mesh")?;
+    let own = own_normals(hull).normal;
+    // The truth's depth along the inward normal (from two footprints outside), footprints.
+    let truth_depth = |f: usize| -> f32 {
+        let start = centroids[f] + own[f] * (2.0 * footprint);
+        truth
+            .first_hit(start, -own[f])
+            .map_or(f32::INFINITY, |(t, _)| t / footprint - 2.0)
+    };
+    println!(
+        "\n| truth's depth under the face (fp) | faces | truth mean | found mean | |found - truth| median | within 1 fp | the face itself within 1 fp | misfit at the face / found |\n|---|---:|---:|---:|---:|---:|---:|---:|"
+    );
+    let bins = [(-1e9, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, 8.0), (8.0, 1e9)];
+    for (lo, hi) in bins {
+        let sel: Vec<(f32, &crate::shading_depth::Found)> = (found.iter())
+            .map(|x| (truth_depth(x.face).min(args.depth_search), x))
+            .filter(|(t, _)| (lo..hi).contains(t))
+            .collect();
+        if sel.is_empty() {
+            continue;
+        }
+        let n = sel.len() as f32;
+        let mut err: Vec<f32> = sel.iter().map(|(t, x)| (x.depth - t).abs()).collect();
+        err.sort_by(f32::total_cmp);
+        let within = |d: &dyn Fn(&(f32, &crate::shading_depth::Found)) -> f32| {
+            100.0 * sel.iter().filter(|s| d(s) <= 1.0).count() as f32 / n
+        };
+        let mean = |g: &dyn Fn(&(f32, &crate::shading_depth::Found)) -> f32| {
+            sel.iter().map(g).sum::<f32>() / n
+        };
+        println!(
+            "| {lo}-{hi} | {} | {:.2} | {:.2} | {:.2} | {:.1} % | {:.1} % | {:.4} / {:.4} |",
+            sel.len(),
+            mean(&|(t, _)| *t),
+            mean(&|(_, x)| x.depth),
+            err[err.len() / 2],
+            within(&|(t, x)| (x.depth - t).abs()),
+            within(&|(t, _)| t.abs()),
+            mean(&|(_, x)| x.misfit_at_face),
+            mean(&|(_, x)| x.misfit),
+        );
     }
     Ok(())
 }
