@@ -572,7 +572,7 @@ impl CarvedRegions {
         if x >= nx || y >= ny || z >= nz {
             return None;
         }
-        (self.points.binary_search(&(x + nx * (y + ny * z))).ok()).map(|s| self.label[s])
+        (self.points.binary_search(&grid.index(x, y, z)).ok()).map(|s| self.label[s])
     }
 }
 

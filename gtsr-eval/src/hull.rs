@@ -27,7 +27,7 @@ use crate::marching::{Grid, marching_cubes};
 
 /// Bilinear sample of a `w x h` single-channel image at continuous pixel coordinates
 /// (pixel centres at `i + 0.5`), clamped at the border.
-pub(crate) fn bilinear(img: &[f32], w: usize, h: usize, u: f32, v: f32) -> f32 {
+pub fn bilinear(img: &[f32], w: usize, h: usize, u: f32, v: f32) -> f32 {
     let x = (u - 0.5).clamp(0.0, (w - 1) as f32);
     let y = (v - 0.5).clamp(0.0, (h - 1) as f32);
     let (x0, y0) = (x as usize, y as usize);

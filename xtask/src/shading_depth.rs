@@ -16,6 +16,7 @@
 use glam::{Mat3, Vec3};
 use gtsr_data::Camera;
 use gtsr_data::ply::TriMesh;
+use gtsr_eval::hull::bilinear;
 use gtsr_eval::mesh::face_centroid;
 use gtsr_eval::shading::own_normals;
 use rayon::prelude::*;
@@ -40,17 +41,6 @@ pub struct SearchSettings {
     pub min_views: usize,
     /// Scene units.
     pub footprint: f32,
-}
-
-fn bilinear(img: &[f32], w: usize, h: usize, u: f32, v: f32) -> f32 {
-    let x = (u - 0.5).clamp(0.0, (w - 1) as f32);
-    let y = (v - 0.5).clamp(0.0, (h - 1) as f32);
-    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
-    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-    let a = img[y0 * w + x0] * (1.0 - fx) + img[y0 * w + x1] * fx;
-    let b = img[y1 * w + x0] * (1.0 - fx) + img[y1 * w + x1] * fx;
-    a * (1.0 - fy) + b * fy
 }
 
 /// The relative residual of the Lambertian fit `y = b . w` (`None` below 3 readings or for a
@@ -94,6 +84,7 @@ pub fn search(
     settings: &SearchSettings,
 ) -> Vec<Found> {
     let own = own_normals(mesh).normal;
+    let eyes: Vec<Vec3> = views.iter().map(|v| v.camera.centre()).collect();
     (0..mesh.triangles.len())
         .into_par_iter()
         .filter(|f| face_slack[*f] >= settings.min_slack)
@@ -101,10 +92,9 @@ pub fn search(
             let c = face_centroid(mesh, mesh.triangles[f]);
             let n = own[f];
             // The views that see the face: facing it and first to meet it.
-            let seeing: Vec<&SearchView<'_>> = (views.iter())
-                .filter(|v| {
-                    let eye = v.camera.centre();
-                    if n.dot((eye - c).normalize()) < settings.min_cos {
+            let seeing: Vec<(&SearchView<'_>, Vec3)> = (views.iter().zip(eyes.iter().copied()))
+                .filter(|(v, eye)| {
+                    if n.dot((*eye - c).normalize()) < settings.min_cos {
                         return false;
                     }
                     let Some((uv, z)) = v.camera.project(c) else {
@@ -128,7 +118,7 @@ pub fn search(
                 let depth = 0.5 * k as f32;
                 let p = c - n * (depth * settings.footprint);
                 let readings: Vec<(Vec3, f32)> = (seeing.iter())
-                    .filter_map(|v| {
+                    .filter_map(|(v, eye)| {
                         let (uv, _) = v.camera.project(p)?;
                         let (w, h) = (v.camera.width as usize, v.camera.height as usize);
                         if !(uv.x >= 0.0 && uv.y >= 0.0 && uv.x < w as f32 && uv.y < h as f32) {
@@ -137,7 +127,7 @@ pub fn search(
                         if v.mask.is_some_and(|m| bilinear(m, w, h, uv.x, uv.y) < 0.99) {
                             return None;
                         }
-                        let d = v.camera.centre() - p;
+                        let d = *eye - p;
                         let r2 = d.length_squared();
                         let i = bilinear(v.radiance, w, h, uv.x, uv.y);
                         i.is_finite().then(|| (d / r2.sqrt(), i * r2))
