@@ -105,6 +105,8 @@ pub const DEFAULT_SHADING_ANCHOR: f32 = 100.0;
 pub const DEFAULT_SHADING_SLACK: f32 = 4.0;
 /// The default of [`MeshConfig::shading_rounds`].
 pub const DEFAULT_SHADING_ROUNDS: usize = 6;
+/// The default of [`MeshConfig::shading_steep_tilt`], degrees.
+pub const DEFAULT_SHADING_STEEP_TILT: f32 = 60.0;
 /// The default of [`MeshConfig::shading_depth_threshold`], footprints.
 pub const DEFAULT_SHADING_DEPTH_THRESHOLD: f32 = 0.25;
 /// [`MeshConfig::shading_depth`]: the depth's offsets count on faces at least this many views
@@ -225,6 +227,13 @@ pub struct MeshConfig {
     /// have moved ([`crate::shading::ShadingRefinement::rounds`]; at least 1).
     #[arg(skip = DEFAULT_SHADING_ROUNDS)]
     pub shading_rounds: usize,
+    /// Carving, with the shading refinement held by the slack: the largest tilt of a target
+    /// normal from its face trusted where a face's slack reaches twice `--shading-slack`
+    /// (degrees, below 90), ramping from 30 degrees at `--shading-slack` and below
+    /// ([`crate::shading::slack_tilt_limits`]): the masks leave room for steep walls only
+    /// over the concavities they cannot see.
+    #[arg(skip = DEFAULT_SHADING_STEEP_TILT)]
+    pub shading_steep_tilt: f32,
     /// Carving: the largest share of the masks' pixels (those the bound covers, over every
     /// view) that the carved mesh may leave uncovered; beyond it the carving is refused and
     /// the bound goes on alone. The object fills every mask, so a carving that opens the
@@ -359,6 +368,7 @@ impl Default for MeshConfig {
             shading_shrink: true,
             shading_slack: DEFAULT_SHADING_SLACK,
             shading_rounds: DEFAULT_SHADING_ROUNDS,
+            shading_steep_tilt: DEFAULT_SHADING_STEEP_TILT,
             carve_voxel: None,
             voxel: None,
             truncation: None,
@@ -510,6 +520,12 @@ impl MeshConfig {
         }
         if self.shading_rounds == 0 {
             return bad("mesh.shading_rounds must be at least 1".into());
+        }
+        if !(self.shading_steep_tilt > 0.0 && self.shading_steep_tilt < 90.0) {
+            return bad(format!(
+                "mesh.shading_steep_tilt must be an angle in (0, 90) degrees, got {}",
+                self.shading_steep_tilt
+            ));
         }
         if let Some(t) = self.depth_crossing
             && !(t > 0.0 && t < 1.0)
@@ -1310,7 +1326,7 @@ fn lid_departure(
 
 /// `mesh` refined by the shading of the masks' views ([`refine_by_shading`]) with the settings
 /// of `config` ([`MeshConfig::shading_anchor`], `shading_shrink`, `shading_slack`,
-/// `shading_rounds`) and, with
+/// `shading_rounds`, `shading_steep_tilt`) and, with
 /// `depth`, by the offsets its depth maps observe; the anchor, the slack's reference, the
 /// outward bound and the depth's length and threshold in the masks' pixel footprints at the
 /// mesh's centre.
@@ -1338,6 +1354,7 @@ fn shading_refined(
         },
         slack_reference: (slack > 0.0).then_some(slack * footprint),
         rounds: config.shading_rounds,
+        steep_tilt: config.shading_steep_tilt.to_radians().sin(),
         shading: ShadingSettings {
             shrink: config.shading_shrink,
             ..defaults.shading
@@ -1401,11 +1418,14 @@ fn shading_refined(
         let q = |p: f64| quantile(&s, p).unwrap_or(0.0);
         notes.push(format!(
             "shading refinement: the vertices' slack on the masks' hull, quantiles \
-             0.1/0.5/0.9/0.99 {:.2}/{:.2}/{:.2}/{:.2} footprints (the anchor is whole from {slack})",
+             0.1/0.5/0.9/0.99 {:.2}/{:.2}/{:.2}/{:.2} footprints (the anchor is whole from \
+             {slack}; tilts trusted up to {} degrees from {})",
             q(0.1),
             q(0.5),
             q(0.9),
-            q(0.99)
+            q(0.99),
+            config.shading_steep_tilt,
+            2.0 * slack
         ));
     }
     if !refined.round_changes.is_empty() {
@@ -1550,6 +1570,13 @@ mod tests {
                     ..Default::default()
                 },
                 "mesh.shading_rounds",
+            ),
+            (
+                MeshConfig {
+                    shading_steep_tilt: 90.0,
+                    ..Default::default()
+                },
+                "mesh.shading_steep_tilt",
             ),
             (
                 MeshConfig {

@@ -350,19 +350,26 @@ pub fn refine(
     depth: Option<&DepthTargets>,
     settings: &RefineSettings,
 ) -> Result<(TriMesh, Vec<f32>)> {
-    refine_anchored(mesh, targets, depth, settings, None)
+    refine_anchored(mesh, targets, depth, settings, None, None)
 }
 
 /// [`refine`] with the anchor's weight scaled per vertex by `anchor_scale` (e.g. large where
-/// the mesh should stay, 1 where the normals may move it).
+/// the mesh should stay, 1 where the normals may move it) and, with `face_max_tilt`, the
+/// largest trusted tilt set per face (sines in (0, 1), instead of [`RefineSettings::max_tilt`]).
 pub fn refine_anchored(
     mesh: &TriMesh,
     targets: &FaceNormals,
     depth: Option<&DepthTargets>,
     settings: &RefineSettings,
     anchor_scale: Option<&[f32]>,
+    face_max_tilt: Option<&[f32]>,
 ) -> Result<(TriMesh, Vec<f32>)> {
     let nf = mesh.triangles.len();
+    if face_max_tilt.is_some_and(|t| t.len() != nf || t.iter().any(|s| !(*s > 0.0 && *s < 1.0))) {
+        return Err(EvalError::InvalidArgument(format!(
+            "face tilt limits: one sine in (0, 1) per face expected ({nf} faces)"
+        )));
+    }
     if anchor_scale.is_some_and(|a| {
         a.len() != mesh.positions.len() || a.iter().any(|v| !(v.is_finite() && *v >= 0.0))
     }) {
@@ -428,7 +435,8 @@ pub fn refine_anchored(
             // trusted; none for a target facing away.
             let sine = t.length();
             tf[f] = if s.dot(n) > 0.0 && sine > 0.0 {
-                let trusted = sine.min(settings.max_tilt);
+                let cap = face_max_tilt.map_or(settings.max_tilt, |t| t[f]);
+                let trusted = sine.min(cap);
                 t * (trusted / (1.0 - trusted * trusted).max(1e-6).sqrt() / sine)
             } else {
                 Vec3::ZERO
@@ -709,6 +717,30 @@ mod tests {
             ..steep
         });
         assert!((d + 0.411).abs() < 0.02, "centre moved {d}");
+        // Per-face limits override the setting: 60 degrees on the bowl's faces carve it
+        // whole under the 30-degree setting, and 30 degrees on them cap it under a
+        // 60-degree setting.
+        let per_face = |limit: f32, settings: &RefineSettings| {
+            let limits = vec![limit; mesh.triangles.len()];
+            let (_, d) =
+                refine_anchored(&mesh, &targets, None, settings, None, Some(&limits)).unwrap();
+            d[30 * 61 + 30]
+        };
+        let loose = RefineSettings {
+            max_tilt: MAX_TILT_SINE,
+            ..steep
+        };
+        let d = per_face(0.866, &loose);
+        assert!((d + 0.5).abs() < 0.02, "centre moved {d}");
+        let d = per_face(MAX_TILT_SINE, &steep);
+        assert!((d + 0.411).abs() < 0.02, "centre moved {d}");
+        // A limit outside (0, 1) or one per vertex is refused.
+        for bad in [
+            vec![1.0; mesh.triangles.len()],
+            vec![0.5; mesh.positions.len()],
+        ] {
+            assert!(refine_anchored(&mesh, &targets, None, &steep, None, Some(&bad)).is_err());
+        }
     }
 
     #[test]

@@ -756,6 +756,40 @@ pub fn slack_anchor_scale(slack: &[f32], reference: f32, power: f32) -> Vec<f32>
         .collect()
 }
 
+/// Per face of `mesh`, the sine of the largest tilt the refinement trusts
+/// ([`crate::refine::refine_anchored`]), by how much room the masks leave it: a face whose
+/// least vertex slack (any length unit, the same for `reference`) is at most `reference` gets
+/// `base` (a sine), one whose slack reaches twice `reference` gets `steep`, and the angle
+/// ramps linearly between. Where the hull lies tight on the object a steep target can only be
+/// the shading's error; over a concavity the masks cannot see, the object's walls may be
+/// steep.
+pub fn slack_tilt_limits(
+    mesh: &TriMesh,
+    slack: &[f32],
+    reference: f32,
+    base: f32,
+    steep: f32,
+) -> Vec<f32> {
+    let (a0, a1) = (base.clamp(0.0, 1.0).asin(), steep.clamp(0.0, 1.0).asin());
+    mesh.triangles
+        .iter()
+        .map(|t| {
+            let s = t
+                .iter()
+                .map(|i| slack.get(*i as usize).copied().unwrap_or(0.0))
+                .fold(f32::INFINITY, f32::min);
+            let share = ((s - reference) / reference).clamp(0.0, 1.0);
+            (a0 + share * (a1 - a0))
+                .sin()
+                .clamp(1e-6, MAX_TRUSTED_TILT_SINE)
+        })
+        .collect()
+}
+
+/// The largest tilt limit [`slack_tilt_limits`] gives (a sine below 1: a target at a right
+/// angle to its face has no slope).
+const MAX_TRUSTED_TILT_SINE: f32 = 0.999;
+
 /// The shading normals of `mesh` in `images` ([`shading_normals`]): each image sees the faces
 /// that `caster` (built on `mesh`) hits first, and with `settings.interreflection` the light
 /// of the surroundings is modelled from `rays` rays a face. Also returns the casts' z-depths,
@@ -812,6 +846,10 @@ pub struct ShadingRefinement {
     /// masks leave room (over a concavity they cannot see) the normals move the mesh far;
     /// scene units (`None`: one anchor for all). Needs the images' masks.
     pub slack_reference: Option<f32>,
+    /// With [`ShadingRefinement::slack_reference`]: the sine of the largest tilt of a target
+    /// normal trusted on the faces whose slack reaches twice the reference
+    /// ([`slack_tilt_limits`], from [`RefineSettings::max_tilt`] at the reference and below).
+    pub steep_tilt: f32,
 }
 
 impl Default for ShadingRefinement {
@@ -827,6 +865,7 @@ impl Default for ShadingRefinement {
             surrounding_rays: 32,
             rounds: 1,
             slack_reference: None,
+            steep_tilt: crate::refine::MAX_TILT_SINE,
         }
     }
 }
@@ -844,7 +883,7 @@ pub struct ShadingRefined {
     pub interreflection: f32,
     /// The mean share of the solved faces' corrections kept ([`ShadingFit::confidence`]).
     pub confidence: f32,
-    /// Per vertex, its slack on the masks' hull (scene units, at most the reference) when
+    /// Per vertex, its slack on the masks' hull (scene units, at most twice the reference) when
     /// [`ShadingRefinement::slack_reference`] is set.
     pub slack: Option<Vec<f32>>,
     /// Per round after the first, how much it changed the vertices' moves: the root mean
@@ -912,17 +951,20 @@ pub fn refine_by_shading(
         && settings.rounds > 0
         && settings
             .slack_reference
-            .is_none_or(|r| r.is_finite() && r > 0.0);
+            .is_none_or(|r| r.is_finite() && r > 0.0)
+        && settings.steep_tilt > 0.0
+        && settings.steep_tilt < 1.0;
     if !valid {
         return Err(EvalError::InvalidArgument(format!(
             "shading refinement: the anchor and the slack's reference must be positive, the \
-             outward bound non-negative, at least one surrounding ray cast and one round run \
-             (got {}, {:?}, {}, {}, {})",
+             outward bound non-negative, at least one surrounding ray cast and one round run, \
+             the steep tilt a sine in (0, 1) (got {}, {:?}, {}, {}, {}, {})",
             settings.anchor,
             settings.slack_reference,
             settings.max_outward,
             settings.surrounding_rays,
-            settings.rounds
+            settings.rounds,
+            settings.steep_tilt
         )));
     }
     let slack = match settings.slack_reference {
@@ -937,11 +979,13 @@ pub fn refine_by_shading(
                         .into(),
                 ));
             }
+            // Up to twice the reference: the anchor is whole from the reference, the
+            // trusted tilt from twice it.
             Some(crate::hull_slack(
                 &masks,
                 &mesh.positions,
                 reference / SLACK_STEPS as f32,
-                reference,
+                2.0 * reference,
             )?)
         }
         None => None,
@@ -953,6 +997,9 @@ pub fn refine_by_shading(
     };
     let scale: Option<Vec<f32>> = (slack.as_ref().zip(settings.slack_reference))
         .map(|(s, r)| slack_anchor_scale(s, r, SLACK_POWER));
+    let tilt: Option<Vec<f32>> = (slack.as_ref().zip(settings.slack_reference))
+        .filter(|_| settings.steep_tilt != refine_settings.max_tilt)
+        .map(|(s, r)| slack_tilt_limits(mesh, s, r, refine_settings.max_tilt, settings.steep_tilt));
     // A round observes the normals on `on` (the last round's mesh) and refines `mesh` by them.
     let round = |on: &TriMesh| -> Result<(TriMesh, Vec<f32>, ShadingFit)> {
         let caster = crate::MeshRaycaster::new(on, "the mesh to refine")?;
@@ -985,8 +1032,14 @@ pub fn refine_by_shading(
             }
             None => fit.normals.clone(),
         };
-        let (refined, moves) =
-            refine_anchored(mesh, &targets, depth, &refine_settings, scale.as_deref())?;
+        let (refined, moves) = refine_anchored(
+            mesh,
+            &targets,
+            depth,
+            &refine_settings,
+            scale.as_deref(),
+            tilt.as_deref(),
+        )?;
         Ok((refined, moves, fit))
     };
     let (mut refined, mut moves, mut fit) = round(mesh)?;
@@ -1045,6 +1098,27 @@ mod tests {
 
     /// The calibration's root finder: a crossing inside a step, past the old scan's 0.4, none
     /// (the least value), and none to find (0).
+    #[test]
+    fn the_trusted_tilt_ramps_with_the_least_slack_of_a_face() {
+        // Four faces over five vertices; the reference slack is 2.
+        let mesh = TriMesh {
+            positions: vec![Vec3::ZERO; 5],
+            triangles: vec![[0, 1, 2], [1, 2, 3], [2, 3, 4], [1, 2, 4]],
+        };
+        let slack = [0.5, 9.0, 9.0, 3.0, 4.0];
+        let (base, steep) = (30f32.to_radians().sin(), 60f32.to_radians().sin());
+        let t = slack_tilt_limits(&mesh, &slack, 2.0, base, steep);
+        let deg: Vec<f32> = t.iter().map(|s| s.asin().to_degrees()).collect();
+        // Slack 0.5 (under the reference): the base; 3 (halfway to twice it): 45 degrees;
+        // 4 (twice it) and beyond: the steep limit.
+        for (got, want) in deg.iter().zip([30.0, 45.0, 45.0, 60.0]) {
+            assert!((got - want).abs() < 1e-3, "{deg:?}");
+        }
+        // Never a right angle, whatever the steep limit asked.
+        let t = slack_tilt_limits(&mesh, &slack, 2.0, base, 1.0);
+        assert!(t.iter().all(|s| *s > 0.0 && *s < 1.0));
+    }
+
     #[test]
     fn the_zero_of_a_falling_function() {
         for root in [0.0123f32, 0.37, 0.52, 0.999] {
@@ -1499,7 +1573,8 @@ mod tests {
         assert_eq!((only_a.normal[2], only_a.weight[2]), (Vec3::ZERO, 0.0));
     }
 
-    /// Holding the vertices by their slack needs a positive reference and the masks.
+    /// Holding the vertices by their slack needs a positive reference and the masks; the
+    /// steep tilt it allows must be a sine in (0, 1).
     #[test]
     fn the_slack_needs_masks_and_a_positive_reference() {
         let mesh = square();
@@ -1519,6 +1594,15 @@ mod tests {
         }
         let err = refine_by_shading(&mesh, &images, None, None, &with(Some(0.1))).unwrap_err();
         assert!(err.to_string().contains("masks"), "{err}");
+        // The steep limit is the sine of a tilt short of a right angle.
+        for steep_tilt in [0.0, 1.0, -0.5, f32::NAN] {
+            let settings = ShadingRefinement {
+                steep_tilt,
+                ..ShadingRefinement::default()
+            };
+            let err = refine_by_shading(&mesh, &images, None, None, &settings).unwrap_err();
+            assert!(err.to_string().contains("steep tilt"), "{err}");
+        }
     }
 
     /// A bowl the silhouettes cannot see, under a lid: the lid refined by the shading of the

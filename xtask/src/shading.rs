@@ -133,6 +133,20 @@ pub struct ShadingStereoArgs {
     /// With `--depth-search`: the least slack (footprints) of a searched face.
     #[arg(long, default_value_t = 2.0)]
     pub depth_search_min_slack: f32,
+    /// The largest tilt of a shading normal from its face that the refinement trusts
+    /// (degrees; `RefineSettings::max_tilt`).
+    #[arg(long, default_value_t = 30.0)]
+    pub max_tilt_deg: f32,
+    /// Trust tilts up to this many degrees on the faces whose slack on the masks' hull
+    /// reaches the upper end of `--steep-slack`, ramping from `--max-tilt-deg` at its lower
+    /// end (0: `--max-tilt-deg` everywhere).
+    #[arg(long, default_value_t = 0.0)]
+    pub steep_tilt: f32,
+    /// With `--steep-tilt`: the slack (footprints; a face's least vertex slack) from which
+    /// the trusted tilt ramps up, reaching `--steep-tilt` at twice it
+    /// (`gtsr_eval::shading::slack_tilt_limits`).
+    #[arg(long, default_value_t = 4.0)]
+    pub steep_slack: f32,
 }
 
 /// Which of an image's channels [`shading_normals`] reads.
@@ -602,12 +616,23 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
          shading normals vs truth (deg) | moves mean / most |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
     );
     println!("| - | masks alone | {} | - | - | - |", score(&hull)?);
+    // Per face, the largest trusted tilt (a sine), by its least vertex slack.
+    let face_tilt: Option<Vec<f32>> = (args.steep_tilt > 0.0).then(|| {
+        gtsr_eval::shading::slack_tilt_limits(
+            &hull,
+            &slack,
+            args.steep_slack,
+            args.max_tilt_deg.to_radians().sin(),
+            args.steep_tilt.to_radians().sin(),
+        )
+    });
     for (k, &anchor) in args.anchors.iter().enumerate() {
         let refine_settings = RefineSettings {
             anchor,
             max_depth: args.max_depth,
             max_outward: args.max_outward * footprint,
             iterations: args.cg_iterations,
+            max_tilt: args.max_tilt_deg.to_radians().sin(),
             ..RefineSettings::default()
         };
         let mut mesh = hull.clone();
@@ -774,6 +799,7 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
                 None,
                 &refine_settings,
                 scale.as_deref(),
+                face_tilt.as_deref(),
             )?;
             let mean = d.iter().map(|v| *v as f64).sum::<f64>() / d.len().max(1) as f64;
             let most = d.iter().fold(0.0f32, |a, v| a.min(*v));
