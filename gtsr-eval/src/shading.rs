@@ -758,11 +758,11 @@ pub fn slack_anchor_scale(slack: &[f32], reference: f32, power: f32) -> Vec<f32>
 
 /// Per face of `mesh`, the sine of the largest tilt the refinement trusts
 /// ([`crate::refine::refine_anchored`]), by how much room the masks leave it: a face whose
-/// least vertex slack (any length unit, the same for `reference`) is at most `reference` gets
-/// `base` (a sine), one whose slack reaches twice `reference` gets `steep`, and the angle
-/// ramps linearly between. Where the hull lies tight on the object a steep target can only be
-/// the shading's error; over a concavity the masks cannot see, the object's walls may be
-/// steep.
+/// least vertex slack (any length unit, the same for the positive `reference`) is at most
+/// `reference` gets `base` (a sine), one whose slack reaches twice `reference` gets `steep`,
+/// and the angle ramps linearly between. Where the hull lies tight on the object a steep
+/// target can only be the shading's error; over a concavity the masks cannot see, the
+/// object's walls may be steep.
 pub fn slack_tilt_limits(
     mesh: &TriMesh,
     slack: &[f32],
@@ -1096,8 +1096,8 @@ mod tests {
             .collect()
     }
 
-    /// The calibration's root finder: a crossing inside a step, past the old scan's 0.4, none
-    /// (the least value), and none to find (0).
+    /// The trusted tilt follows a face's least vertex slack: the base up to the reference, the
+    /// steep limit from twice it, the angle linear between.
     #[test]
     fn the_trusted_tilt_ramps_with_the_least_slack_of_a_face() {
         // Four faces over five vertices; the reference slack is 2.
@@ -1119,6 +1119,8 @@ mod tests {
         assert!(t.iter().all(|s| *s > 0.0 && *s < 1.0));
     }
 
+    /// The calibration's root finder: a crossing inside a step, past the old scan's 0.4, none
+    /// (the least value), and none to find (0).
     #[test]
     fn the_zero_of_a_falling_function() {
         for root in [0.0123f32, 0.37, 0.52, 0.999] {

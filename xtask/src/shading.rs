@@ -138,8 +138,8 @@ pub struct ShadingStereoArgs {
     #[arg(long, default_value_t = 30.0)]
     pub max_tilt_deg: f32,
     /// Trust tilts up to this many degrees on the faces whose slack on the masks' hull
-    /// reaches the upper end of `--steep-slack`, ramping from `--max-tilt-deg` at its lower
-    /// end (0: `--max-tilt-deg` everywhere).
+    /// reaches twice `--steep-slack`, ramping from `--max-tilt-deg` at `--steep-slack` (0:
+    /// `--max-tilt-deg` everywhere).
     #[arg(long, default_value_t = 0.0)]
     pub steep_tilt: f32,
     /// With `--steep-tilt`: the slack (footprints; a face's least vertex slack) from which
