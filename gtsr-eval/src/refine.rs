@@ -435,7 +435,7 @@ pub fn refine_anchored(
             // trusted; none for a target facing away.
             let sine = t.length();
             tf[f] = if s.dot(n) > 0.0 && sine > 0.0 {
-                let cap = face_max_tilt.map_or(settings.max_tilt, |t| t[f]);
+                let cap = face_max_tilt.map_or(settings.max_tilt, |limits| limits[f]);
                 let trusted = sine.min(cap);
                 t * (trusted / (1.0 - trusted * trusted).max(1e-6).sqrt() / sine)
             } else {
@@ -712,10 +712,11 @@ mod tests {
         assert!((d + 0.5).abs() < 0.02, "centre moved {d}");
         // At the default 30 degrees the slope stops at tan 30 from r = 0.577 on: the depth
         // is 0.577^2 / 2 + 0.577 (1 - 0.577) = 0.411 (the capped sines would give 0.366).
-        let d = centre(&RefineSettings {
+        let capped = RefineSettings {
             max_tilt: MAX_TILT_SINE,
             ..steep
-        });
+        };
+        let d = centre(&capped);
         assert!((d + 0.411).abs() < 0.02, "centre moved {d}");
         // Per-face limits override the setting: 60 degrees on the bowl's faces carve it
         // whole under the 30-degree setting, and 30 degrees on them cap it under a
@@ -726,11 +727,7 @@ mod tests {
                 refine_anchored(&mesh, &targets, None, settings, None, Some(&limits)).unwrap();
             d[30 * 61 + 30]
         };
-        let loose = RefineSettings {
-            max_tilt: MAX_TILT_SINE,
-            ..steep
-        };
-        let d = per_face(0.866, &loose);
+        let d = per_face(0.866, &capped);
         assert!((d + 0.5).abs() < 0.02, "centre moved {d}");
         let d = per_face(MAX_TILT_SINE, &steep);
         assert!((d + 0.411).abs() < 0.02, "centre moved {d}");

@@ -616,13 +616,14 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
          shading normals vs truth (deg) | moves mean / most |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
     );
     println!("| - | masks alone | {} | - | - | - |", score(&hull)?);
+    let max_tilt = args.max_tilt_deg.to_radians().sin();
     // Per face, the largest trusted tilt (a sine), by its least vertex slack.
     let face_tilt: Option<Vec<f32>> = (args.steep_tilt > 0.0).then(|| {
         gtsr_eval::shading::slack_tilt_limits(
             &hull,
             &slack,
             args.steep_slack,
-            args.max_tilt_deg.to_radians().sin(),
+            max_tilt,
             args.steep_tilt.to_radians().sin(),
         )
     });
@@ -632,7 +633,7 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
             max_depth: args.max_depth,
             max_outward: args.max_outward * footprint,
             iterations: args.cg_iterations,
-            max_tilt: args.max_tilt_deg.to_radians().sin(),
+            max_tilt,
             ..RefineSettings::default()
         };
         let mut mesh = hull.clone();
