@@ -105,6 +105,8 @@ pub const DEFAULT_SHADING_ANCHOR: f32 = 100.0;
 pub const DEFAULT_SHADING_SLACK: f32 = 4.0;
 /// The default of [`MeshConfig::shading_rounds`].
 pub const DEFAULT_SHADING_ROUNDS: usize = 6;
+/// The default of [`MeshConfig::shading_unscatter`].
+pub const DEFAULT_SHADING_UNSCATTER: bool = true;
 /// The default of [`MeshConfig::shading_steep_tilt`], degrees.
 pub const DEFAULT_SHADING_STEEP_TILT: f32 = 60.0;
 /// The default of [`MeshConfig::shading_depth_threshold`], footprints.
@@ -234,6 +236,12 @@ pub struct MeshConfig {
     /// over the concavities they cannot see.
     #[arg(skip = DEFAULT_SHADING_STEEP_TILT)]
     pub shading_steep_tilt: f32,
+    /// Carving, with the shading refinement: fit the light scattered under the surface as a
+    /// blur of the shading on the faces the masks' hull holds, and invert it in the images
+    /// before the shading fit ([`crate::scatter::unscatter`], the noise amplified at most
+    /// twofold; false: the images as they are).
+    #[arg(skip = DEFAULT_SHADING_UNSCATTER)]
+    pub shading_unscatter: bool,
     /// Carving: the largest share of the masks' pixels (those the bound covers, over every
     /// view) that the carved mesh may leave uncovered; beyond it the carving is refused and
     /// the bound goes on alone. The object fills every mask, so a carving that opens the
@@ -369,6 +377,7 @@ impl Default for MeshConfig {
             shading_slack: DEFAULT_SHADING_SLACK,
             shading_rounds: DEFAULT_SHADING_ROUNDS,
             shading_steep_tilt: DEFAULT_SHADING_STEEP_TILT,
+            shading_unscatter: DEFAULT_SHADING_UNSCATTER,
             carve_voxel: None,
             voxel: None,
             truncation: None,
@@ -1355,6 +1364,7 @@ fn shading_refined(
         slack_reference: (slack > 0.0).then_some(slack * footprint),
         rounds: config.shading_rounds,
         steep_tilt: config.shading_steep_tilt.to_radians().sin(),
+        unscatter: config.shading_unscatter,
         shading: ShadingSettings {
             shrink: config.shading_shrink,
             ..defaults.shading
@@ -1427,6 +1437,26 @@ fn shading_refined(
             config.shading_steep_tilt,
             2.0 * slack
         ));
+    }
+    if let Some(m) = &refined.scatter {
+        notes.push(if m.blurs() {
+            format!(
+                "shading refinement: the images' scattering inverted: I = {:.3} L + {:.3} \
+                 (G * L), a Gaussian of {} pixels (residual {:.5}, noise amplified up to \
+                 {:.2}x)",
+                m.sharp,
+                m.blurred,
+                m.sigma,
+                m.residual,
+                m.amplification()
+            )
+        } else {
+            format!(
+                "shading refinement: no scattering blur fits the images better than Lambert's \
+                 law (residual {:.5}); the images as they are",
+                m.residual
+            )
+        });
     }
     if !refined.round_changes.is_empty() {
         let changes: Vec<String> = (refined.round_changes.iter())

@@ -22,6 +22,7 @@ pub mod mesh;
 pub mod metrics;
 pub mod refine;
 pub mod report;
+pub mod scatter;
 pub mod shading;
 pub mod timeline;
 pub mod tsdf;

@@ -850,6 +850,11 @@ pub struct ShadingRefinement {
     /// normal trusted on the faces whose slack reaches twice the reference
     /// ([`slack_tilt_limits`], from [`RefineSettings::max_tilt`] at the reference and below).
     pub steep_tilt: f32,
+    /// Invert the light scattered under the surface in the images before the shading fit
+    /// ([`crate::scatter::unscatter`]), its model fitted on `mesh`'s faces that the masks'
+    /// hull holds within a quarter of [`ShadingRefinement::slack_reference`] (on every face
+    /// without it).
+    pub unscatter: bool,
 }
 
 impl Default for ShadingRefinement {
@@ -866,6 +871,7 @@ impl Default for ShadingRefinement {
             rounds: 1,
             slack_reference: None,
             steep_tilt: crate::refine::MAX_TILT_SINE,
+            unscatter: false,
         }
     }
 }
@@ -890,6 +896,8 @@ pub struct ShadingRefined {
     /// square of the difference from the round before (scene units). Shorter than
     /// `rounds - 1` when a round left the mesh it observed unmoved (a fixed point).
     pub round_changes: Vec<f32>,
+    /// The scattering model inverted in the images ([`ShadingRefinement::unscatter`]).
+    pub scatter: Option<crate::scatter::Scatter>,
 }
 
 /// Normal maps that share each face's target normal with the shading's in
@@ -990,6 +998,33 @@ pub fn refine_by_shading(
         }
         None => None,
     };
+    let unscattered = if settings.unscatter {
+        // The faces the hull holds within a quarter of the reference: there `mesh` is right.
+        let held: Option<Vec<bool>> =
+            (slack.as_ref().zip(settings.slack_reference)).map(|(s, r)| {
+                (mesh.triangles.iter())
+                    .map(|t| t.iter().all(|v| s[*v as usize] <= 0.25 * r))
+                    .collect()
+            });
+        Some(crate::scatter::unscatter(
+            mesh,
+            held.as_deref(),
+            images,
+            settings.shading.min_cos,
+        )?)
+    } else {
+        None
+    };
+    let owned: Vec<ShadingImage<'_>>;
+    let images = match &unscattered {
+        Some(u) if u.model.blurs() => {
+            owned = (images.iter().zip(&u.radiance))
+                .map(|(v, r)| ShadingImage { radiance: r, ..*v })
+                .collect();
+            &owned[..]
+        }
+        _ => images,
+    };
     let refine_settings = RefineSettings {
         anchor: settings.anchor,
         max_outward: settings.max_outward,
@@ -1064,6 +1099,7 @@ pub fn refine_by_shading(
         confidence: fit.mean_confidence(),
         slack,
         round_changes,
+        scatter: unscattered.map(|u| u.model),
     })
 }
 

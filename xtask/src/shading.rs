@@ -20,8 +20,8 @@ use gtsr_data::ply::TriMesh;
 use gtsr_eval::mesh::face_centroid;
 use gtsr_eval::refine::{FaceNormals, NormalView, RefineSettings, observed_normals};
 use gtsr_eval::shading::{
-    ShadingFit, ShadingSettings, ShadingView, Surroundings, own_normals, shading_normals,
-    surroundings, view_radiance,
+    ShadingFit, ShadingImage, ShadingSettings, ShadingView, Surroundings, own_normals,
+    shading_normals, surroundings, view_radiance,
 };
 use gtsr_eval::tsdf::median_pixel_footprint;
 
@@ -147,6 +147,11 @@ pub struct ShadingStereoArgs {
     /// (`gtsr_eval::shading::slack_tilt_limits`).
     #[arg(long, default_value_t = 4.0)]
     pub steep_slack: f32,
+    /// Fit the light scattered under the surface as a blur of the Lambertian shading on the
+    /// faces the masks' hull holds, and invert it in the images before the shading fit
+    /// (`gtsr_eval::scatter::unscatter`).
+    #[arg(long)]
+    pub unscatter: bool,
 }
 
 /// Which of an image's channels [`shading_normals`] reads.
@@ -431,11 +436,65 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
     let gt = crate::bench_recon::ground_truth(&scene, &args.data).ok();
     let cameras: Vec<Camera> = scene.train.iter().map(|v| v.camera).collect();
     let footprint = median_pixel_footprint(cameras.iter(), Vec3::ZERO);
-    let radiances: Vec<Vec<f32>> = scene
+    let mut radiances: Vec<Vec<f32>> = scene
         .train
         .iter()
         .map(|v| view_radiance(v, channel))
         .collect();
+    let mask_views: Vec<(Camera, &[f32])> = scene
+        .train
+        .iter()
+        .filter_map(|v| v.mask.as_deref().map(|m| (v.camera, m)))
+        .collect();
+    if args.unscatter {
+        // As `gtsr_eval::shading::refine_by_shading` does: the model fitted on the faces the
+        // hull holds within a quarter of the slack's reference.
+        let t = std::time::Instant::now();
+        let reference = args.slack_ref * footprint;
+        let vslack = gtsr_eval::hull_slack(
+            &mask_views,
+            &hull.positions,
+            reference / 32.0,
+            2.0 * reference,
+        )?;
+        let held: Vec<bool> = (hull.triangles.iter())
+            .map(|t| t.iter().all(|v| vslack[*v as usize] <= 0.25 * reference))
+            .collect();
+        let images: Vec<ShadingImage<'_>> = (scene.train.iter().zip(&radiances))
+            .map(|(v, r)| ShadingImage {
+                camera: &v.camera,
+                radiance: r,
+                mask: v.mask.as_deref(),
+            })
+            .collect();
+        let u = gtsr_eval::scatter::unscatter(&hull, Some(&held), &images, args.min_cos)?;
+        drop(images);
+        let row: Vec<String> = (u.fits.iter())
+            .map(|f| {
+                format!(
+                    "P {} G {}: {:.3}/{:.3} {:.5}",
+                    f.pixel, f.sigma, f.sharp, f.blurred, f.residual
+                )
+            })
+            .collect();
+        println!(
+            "unscatter fits on {} held faces (a/b residual): {}",
+            held.iter().filter(|h| **h).count(),
+            row.join("; ")
+        );
+        let m = u.model;
+        println!(
+            "unscatter: pixel filter {} px, scattering {} px, a {:.4}, b {:.4}, amplification \
+             {:.2} ({:.1} s)",
+            m.pixel,
+            m.sigma,
+            m.sharp,
+            m.blurred,
+            m.amplification(),
+            t.elapsed().as_secs_f64()
+        );
+        radiances = u.radiance;
+    }
     // Pixels of the object with a channel at the top of its range: their shading is clipped.
     let (mut object, mut clipped) = (0usize, 0usize);
     for v in &scene.train {
@@ -550,11 +609,6 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
     };
     // The hull's slack per vertex, in footprints.
     let t_slack = std::time::Instant::now();
-    let mask_views: Vec<(Camera, &[f32])> = scene
-        .train
-        .iter()
-        .filter_map(|v| v.mask.as_deref().map(|m| (v.camera, m)))
-        .collect();
     let slack: Vec<f32> = gtsr_eval::hull_slack(
         &mask_views,
         &hull.positions,
