@@ -1442,11 +1442,12 @@ fn shading_refined(
         notes.push(if m.blurs() {
             format!(
                 "shading refinement: the images' scattering inverted: I = {:.3} L + {:.3} \
-                 (G * L), a Gaussian of {} pixels (residual {:.5}, noise amplified up to \
-                 {:.2}x)",
+                 (G * L), a Gaussian of {} pixels, L through a pixel filter of {} (not \
+                 inverted; residual {:.5}, noise amplified up to {:.2}x)",
                 m.sharp,
                 m.blurred,
                 m.sigma,
+                m.pixel,
                 m.residual,
                 m.amplification()
             )

@@ -343,9 +343,10 @@ pub struct Unscattered {
 }
 
 /// Fits the scattering model on `mesh` (the masks' hull, say) over the pixels of the faces
-/// marked in `held` (where that mesh is known to be right; `None`: every face) and inverts it
-/// in every image. The images' cameras' pixels that show a face not held are left out of the
-/// fit (faces seen at a cosine of at least `min_cos`).
+/// marked in `held` (where that mesh is known to be right; `None`, or none of them seen: every
+/// face) and inverts it in every image. The pixels that show a face not held are left out of
+/// the fit; the fit reads the pixels whose cosine is at least `min_cos`. Errors when no image
+/// shows the mesh.
 pub fn unscatter(
     mesh: &TriMesh,
     held: Option<&[bool]>,
@@ -378,43 +379,53 @@ pub fn unscatter(
             (lam, cos, skip)
         })
         .collect();
-    let views: Vec<ScatterView<'_>> = (images.iter().zip(&maps))
-        .map(|(v, (lam, cos, skip))| ScatterView {
-            width: v.camera.width as usize,
-            height: v.camera.height as usize,
-            radiance: v.radiance,
-            mask: v.mask,
-            lambert: lam,
-            cosine: cos,
-            skip: Some(skip),
-        })
-        .collect();
-    let least = |fits: &[Scatter]| -> Result<Scatter> {
-        fits.iter()
-            .filter(|f| f.sharp > 0.0)
-            .min_by(|x, y| x.residual.total_cmp(&y.residual))
-            .copied()
-            .ok_or_else(|| {
-                EvalError::InvalidArgument("unscatter: no view shows the mesh's held faces".into())
+    // The fits over the held faces' pixels (`held_only`) or over every pixel.
+    let fit_all = |held_only: bool| -> Result<(Scatter, Vec<Scatter>)> {
+        let views: Vec<ScatterView<'_>> = (images.iter().zip(&maps))
+            .map(|(v, (lam, cos, skip))| ScatterView {
+                width: v.camera.width as usize,
+                height: v.camera.height as usize,
+                radiance: v.radiance,
+                mask: v.mask,
+                lambert: lam,
+                cosine: cos,
+                skip: held_only.then_some(&skip[..]),
             })
+            .collect();
+        let least = |fits: &[Scatter]| -> Result<Scatter> {
+            fits.iter()
+                .filter(|f| f.sharp > 0.0)
+                .min_by(|x, y| x.residual.total_cmp(&y.residual))
+                .copied()
+                .ok_or_else(|| {
+                    EvalError::InvalidArgument(
+                        "unscatter: no view shows the mesh lit by its own light".into(),
+                    )
+                })
+        };
+        let mut fits = Vec::new();
+        for p in PIXEL_SIGMAS {
+            fits.extend(fit_scatter(&views, p, &[0.0], min_cos, 1.0)?);
+        }
+        let lambert = least(&fits)?;
+        let wider: Vec<f32> = (SCATTER_SIGMAS.iter().copied())
+            .filter(|s| *s > lambert.pixel)
+            .collect();
+        let scattered = fit_scatter(
+            &views,
+            lambert.pixel,
+            &wider,
+            min_cos,
+            SCATTER_MAX_AMPLIFICATION,
+        )?;
+        fits.extend(&scattered);
+        Ok((least(&[&[lambert][..], &scattered].concat())?, fits))
     };
-    let mut fits = Vec::new();
-    for p in PIXEL_SIGMAS {
-        fits.extend(fit_scatter(&views, p, &[0.0], min_cos, 1.0)?);
-    }
-    let lambert = least(&fits)?;
-    let wider: Vec<f32> = (SCATTER_SIGMAS.iter().copied())
-        .filter(|s| *s > lambert.pixel)
-        .collect();
-    let scattered = fit_scatter(
-        &views,
-        lambert.pixel,
-        &wider,
-        min_cos,
-        SCATTER_MAX_AMPLIFICATION,
-    )?;
-    fits.extend(&scattered);
-    let model = least(&[&[lambert][..], &scattered].concat())?;
+    // Where the mesh shows no held face, every pixel counts.
+    let (model, fits) = match fit_all(held.is_some()) {
+        Err(_) if held.is_some() => fit_all(false)?,
+        r => r?,
+    };
     let radiance = if model.blurs() {
         images
             .par_iter()
@@ -598,18 +609,24 @@ mod tests {
         assert!(out.scatter.is_none());
     }
 
-    /// A pixel's worth of blur is fitted as the pixel filter, not inverted as scattering.
+    /// A pixel's worth of blur is fitted as the pixel filter, not inverted as scattering; with
+    /// no face held, the fit reads every pixel.
     #[test]
     fn a_pixel_filter_is_not_taken_for_scattering() {
         let (mesh, cams, lam, masks) = sphere_views();
         let filtered: Vec<Vec<f32>> = lam.iter().map(|l| gaussian_blur(l, 48, 48, 1.0)).collect();
-        let u = unscatter(&mesh, None, &images(&cams, &filtered, &masks), 0.3).unwrap();
+        let views = images(&cams, &filtered, &masks);
+        let u = unscatter(&mesh, None, &views, 0.3).unwrap();
         assert_eq!(u.model.pixel, 1.0, "{:?}", u.model);
         assert!(u.model.amplification() < 1.01, "{:?}", u.model);
+        // No face held: fitted on every pixel alike.
+        let none = vec![false; mesh.triangles.len()];
+        let v = unscatter(&mesh, Some(&none), &views, 0.3).unwrap();
+        assert_eq!(v.model, u.model);
     }
 
     /// Bad input is refused with an error: maps of the wrong size, a negative width, a model
-    /// without a sharp part, held flags that do not match the mesh.
+    /// without a sharp part, held flags that do not match the mesh, no image.
     #[test]
     fn bad_input_is_refused() {
         let v = ScatterView {
@@ -645,5 +662,7 @@ mod tests {
         assert!(deconvolve(&[1.0; 3], None, 2, 2, &model, 10).is_err());
         let mesh = icosphere(Vec3::ZERO, 0.5, 1);
         assert!(unscatter(&mesh, Some(&[true; 3]), &[], 0.3).is_err());
+        // No image shows the mesh.
+        assert!(unscatter(&mesh, None, &[], 0.3).is_err());
     }
 }

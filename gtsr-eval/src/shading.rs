@@ -741,6 +741,9 @@ const SLACK_STEPS: usize = 32;
 const SLACK_FLOOR: f32 = 1e-3;
 /// The power of the slack in the anchor length.
 const SLACK_POWER: f32 = 4.0;
+/// The largest slack, as a share of the reference, of the vertices of the faces the
+/// scattering's model is fitted on ([`ShadingRefinement::unscatter`]).
+const SCATTER_HELD_SLACK: f32 = 0.25;
 
 /// Per vertex, the factor on the refinement's anchor weight ([`crate::refine::refine_anchored`])
 /// that holds it by its slack (any length unit, the same for `reference`): the anchor length is
@@ -999,11 +1002,11 @@ pub fn refine_by_shading(
         None => None,
     };
     let unscattered = if settings.unscatter {
-        // The faces the hull holds within a quarter of the reference: there `mesh` is right.
+        // The faces the hull holds: there `mesh` is right.
         let held: Option<Vec<bool>> =
             (slack.as_ref().zip(settings.slack_reference)).map(|(s, r)| {
                 (mesh.triangles.iter())
-                    .map(|t| t.iter().all(|v| s[*v as usize] <= 0.25 * r))
+                    .map(|t| t.iter().all(|v| s[*v as usize] <= SCATTER_HELD_SLACK * r))
                     .collect()
             });
         Some(crate::scatter::unscatter(
