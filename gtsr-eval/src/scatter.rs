@@ -115,25 +115,30 @@ pub fn gaussian_blur(img: &[f32], w: usize, h: usize, sigma: f32) -> Vec<f32> {
         .collect();
     let sum: f32 = k.iter().sum();
     let k: Vec<f32> = k.iter().map(|x| x / sum).collect();
-    // One pass along lines of `len` values `step` apart, `lines` of them `stride` apart.
-    let pass = |src: &[f32], stride: usize, step: usize, len: usize, lines: usize| {
-        let mut out = vec![0.0f32; src.len()];
-        for l in 0..lines {
-            let base = l * stride;
-            for i in 0..len {
-                let lo = i.saturating_sub(rad);
-                let hi = (i + rad).min(len - 1);
-                let mut acc = 0.0;
-                for j in lo..=hi {
-                    acc += k[j + rad - i] * src[base + j * step];
-                }
-                out[base + i * step] = acc;
+    // Along each row.
+    let mut rows = vec![0.0f32; img.len()];
+    for (src, out) in img.chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
+        for (i, o) in out.iter_mut().enumerate() {
+            let (lo, hi) = (i.saturating_sub(rad), (i + rad).min(w - 1));
+            let mut acc = 0.0;
+            for j in lo..=hi {
+                acc += k[j + rad - i] * src[j];
+            }
+            *o = acc;
+        }
+    }
+    // Along each column, a whole row of sums at a time (contiguous reads).
+    let mut out = vec![0.0f32; img.len()];
+    for (i, o) in out.chunks_exact_mut(w).enumerate() {
+        let (lo, hi) = (i.saturating_sub(rad), (i + rad).min(h - 1));
+        for j in lo..=hi {
+            let kj = k[j + rad - i];
+            for (x, r) in o.iter_mut().zip(&rows[j * w..(j + 1) * w]) {
+                *x += kj * r;
             }
         }
-        out
-    };
-    let rows = pass(img, w, 1, w, h);
-    pass(&rows, 1, w, h, w)
+    }
+    out
 }
 
 /// One view for [`fit_scatter`].
@@ -192,13 +197,17 @@ pub fn fit_scatter(
             "scatter fit: blur widths must be finite and non-negative, got {s}"
         )));
     }
+    // Per view, `P * L`: the same for every width.
+    let bases: Vec<Vec<f32>> = views
+        .iter()
+        .map(|v| gaussian_blur(v.lambert, v.width, v.height, pixel))
+        .collect();
     Ok(sigmas
         .par_iter()
         .map(|&s| {
             // Sums of L L, L B, B B, L I, B I, I I.
             let mut m = [0f64; 6];
-            for v in views {
-                let base = gaussian_blur(v.lambert, v.width, v.height, pixel);
+            for (v, base) in views.iter().zip(&bases) {
                 // `G_s * P` is the Gaussian of the widths' root sum of squares.
                 let bl = if s > 0.0 {
                     gaussian_blur(v.lambert, v.width, v.height, s.hypot(pixel))
@@ -283,11 +292,11 @@ pub fn deconvolve(
         .map(|p| mask.is_none_or(|k| k[p] >= 0.5))
         .collect();
     let total = model.sharp + model.blurred;
-    let mut rhs: Vec<f32> = (radiance.iter().zip(&inside))
+    let rhs: Vec<f32> = (radiance.iter().zip(&inside))
         .map(|(v, i)| if *i && v.is_finite() { *v } else { 0.0 })
         .collect();
     if !model.blurs() {
-        return Ok(rhs.iter_mut().map(|v| v.max(0.0)).collect());
+        return Ok(rhs.into_iter().map(|v| v.max(0.0)).collect());
     }
     let apply = |x: &[f32]| -> Vec<f32> {
         let mut y = gaussian_blur(x, w, h, model.sigma);
@@ -324,7 +333,6 @@ pub fn deconvolve(
         }
         rr = rr_new;
     }
-    rhs.clear();
     Ok(x.iter().map(|v| (total * v).max(0.0)).collect())
 }
 

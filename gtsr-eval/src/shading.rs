@@ -742,8 +742,8 @@ const SLACK_FLOOR: f32 = 1e-3;
 /// The power of the slack in the anchor length.
 const SLACK_POWER: f32 = 4.0;
 /// The largest slack, as a share of the reference, of the vertices of the faces the
-/// scattering's model is fitted on ([`ShadingRefinement::unscatter`]).
-const SCATTER_HELD_SLACK: f32 = 0.25;
+/// scattering's model is fitted on ([`scatter_held_faces`]).
+pub const SCATTER_HELD_SLACK: f32 = 0.25;
 
 /// Per vertex, the factor on the refinement's anchor weight ([`crate::refine::refine_anchored`])
 /// that holds it by its slack (any length unit, the same for `reference`): the anchor length is
@@ -785,6 +785,22 @@ pub fn slack_tilt_limits(
             (a0 + share * (a1 - a0))
                 .sin()
                 .clamp(1e-6, MAX_TRUSTED_TILT_SINE)
+        })
+        .collect()
+}
+
+/// Per face of `mesh`, whether the masks' hull holds it: every vertex's slack (any length
+/// unit, the same for `reference`) at most [`SCATTER_HELD_SLACK`] of `reference`. There the
+/// mesh is right, and [`refine_by_shading`] fits the scattering's model on those faces
+/// ([`crate::scatter::unscatter`]). A vertex without a slack counts as held.
+pub fn scatter_held_faces(mesh: &TriMesh, slack: &[f32], reference: f32) -> Vec<bool> {
+    (mesh.triangles.iter())
+        .map(|t| {
+            t.iter().all(|v| {
+                slack
+                    .get(*v as usize)
+                    .is_none_or(|s| *s <= SCATTER_HELD_SLACK * reference)
+            })
         })
         .collect()
 }
@@ -1002,13 +1018,8 @@ pub fn refine_by_shading(
         None => None,
     };
     let unscattered = if settings.unscatter {
-        // The faces the hull holds: there `mesh` is right.
-        let held: Option<Vec<bool>> =
-            (slack.as_ref().zip(settings.slack_reference)).map(|(s, r)| {
-                (mesh.triangles.iter())
-                    .map(|t| t.iter().all(|v| s[*v as usize] <= SCATTER_HELD_SLACK * r))
-                    .collect()
-            });
+        let held: Option<Vec<bool>> = (slack.as_ref().zip(settings.slack_reference))
+            .map(|(s, r)| scatter_held_faces(mesh, s, r));
         Some(crate::scatter::unscatter(
             mesh,
             held.as_deref(),

@@ -457,9 +457,7 @@ pub fn run(args: &ShadingStereoArgs) -> Result<()> {
             reference / 32.0,
             2.0 * reference,
         )?;
-        let held: Vec<bool> = (hull.triangles.iter())
-            .map(|t| t.iter().all(|v| vslack[*v as usize] <= 0.25 * reference))
-            .collect();
+        let held = gtsr_eval::shading::scatter_held_faces(&hull, &vslack, reference);
         let images: Vec<ShadingImage<'_>> = (scene.train.iter().zip(&radiances))
             .map(|(v, r)| ShadingImage {
                 camera: &v.camera,
