@@ -207,6 +207,12 @@ pub struct MeshConfig {
     /// alone).
     #[arg(skip)]
     pub shading_normals_rendered: f32,
+    /// Carving, with the shading refinement: the share in `[0, 1]` of each view's radiance
+    /// taken from the trained model's render of that view (C_SH, the images as the Gaussians
+    /// reproduce them, without the images' per-pixel noise) instead of the image (0: the
+    /// images alone). The caller renders it ([`MasksAlone::with_rendered_radiance`]).
+    #[arg(skip)]
+    pub shading_radiance_rendered: f32,
     /// With [`MeshConfig::shading_depth`]: the depth's offsets are trusted inward beyond this
     /// many footprints; the faces within it are asked to stay.
     #[arg(skip = DEFAULT_SHADING_DEPTH_THRESHOLD)]
@@ -372,6 +378,7 @@ impl Default for MeshConfig {
             shading_anchor: DEFAULT_SHADING_ANCHOR,
             shading_depth: 0.0,
             shading_normals_rendered: 0.0,
+            shading_radiance_rendered: 0.0,
             shading_depth_threshold: DEFAULT_SHADING_DEPTH_THRESHOLD,
             shading_shrink: true,
             shading_slack: DEFAULT_SHADING_SLACK,
@@ -527,6 +534,12 @@ impl MeshConfig {
                 self.shading_normals_rendered
             ));
         }
+        if !(0.0..=1.0).contains(&self.shading_radiance_rendered) {
+            return bad(format!(
+                "mesh.shading_radiance_rendered must be a share in [0, 1], got {}",
+                self.shading_radiance_rendered
+            ));
+        }
         if self.shading_rounds == 0 {
             return bad("mesh.shading_rounds must be at least 1".into());
         }
@@ -662,6 +675,49 @@ impl MasksAlone {
             }
         }
         self.radiance = Some(radiance);
+        Ok(self)
+    }
+
+    /// These masks with each view's radiance blended with `rendered` (the same views' linear
+    /// radiance as a model renders them, at the masks' size): `(1 - share)` of the image and
+    /// `share` of the render ([`MeshConfig::shading_radiance_rendered`]). Errors without
+    /// [`MasksAlone::radiance`], on a share outside `[0, 1]`, and where the renders' count or
+    /// sizes differ from the masks' or hold a value that is not finite.
+    pub fn with_rendered_radiance(mut self, rendered: &[Vec<f32>], share: f32) -> Result<Self> {
+        if !(0.0..=1.0).contains(&share) {
+            return Err(EvalError::InvalidArgument(format!(
+                "the rendered radiance's share must lie in [0, 1], got {share}"
+            )));
+        }
+        let Some(radiance) = self.radiance.as_mut() else {
+            return Err(EvalError::InvalidArgument(
+                "blending rendered radiance needs the images' radiance".into(),
+            ));
+        };
+        if rendered.len() != radiance.len() {
+            return Err(EvalError::size(
+                "rendered radiance views",
+                radiance.len(),
+                rendered.len(),
+            ));
+        }
+        for (image, render) in radiance.iter_mut().zip(rendered) {
+            if render.len() != image.len() {
+                return Err(EvalError::size(
+                    "rendered radiance",
+                    image.len(),
+                    render.len(),
+                ));
+            }
+            if render.iter().any(|x| !x.is_finite()) {
+                return Err(EvalError::NonFinite {
+                    what: "rendered radiance".into(),
+                });
+            }
+            for (i, r) in image.iter_mut().zip(render) {
+                *i += share * (r - *i);
+            }
+        }
         Ok(self)
     }
 
@@ -2256,5 +2312,55 @@ mod tests {
         assert!(e.to_string().contains("non-finite"), "{e}");
         let ok = masks.with_radiance(vec![vec![0.5; 64]; 3]).unwrap();
         assert_eq!(ok.radiance.map(|r| r.len()), Some(3));
+    }
+
+    /// The shading's images blended with a model's renders: `(1 - share)` of each image and
+    /// `share` of its render, pixel by pixel; the bad blends are refused by name.
+    #[test]
+    fn rendered_radiance_is_blended_by_its_share() {
+        let camera = Camera::look_at(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, Vec3::Y, 0.5, 8, 8);
+        let mut mask = vec![0.0f32; 64];
+        for y in 2..6 {
+            for x in 2..6 {
+                mask[y * 8 + x] = 1.0;
+            }
+        }
+        let views: Vec<(Camera, Vec<f32>)> = (0..3).map(|_| (camera, mask.clone())).collect();
+        let masks = MasksAlone::new(views).unwrap().expect("a cube of views");
+        let renders: Vec<Vec<f32>> = (0..3)
+            .map(|k| (0..64).map(|p| 0.01 * (p + k) as f32).collect())
+            .collect();
+        let e = masks
+            .clone()
+            .with_rendered_radiance(&renders, 0.5)
+            .unwrap_err();
+        assert!(e.to_string().contains("needs the images"), "{e}");
+        let lit = masks.with_radiance(vec![vec![0.2; 64]; 3]).unwrap();
+        for share in [0.0f32, 0.25, 1.0] {
+            let blended = lit.clone().with_rendered_radiance(&renders, share).unwrap();
+            for (image, render) in blended.radiance.as_ref().unwrap().iter().zip(&renders) {
+                for (b, r) in image.iter().zip(render) {
+                    let want = 0.2 * (1.0 - share) + r * share;
+                    assert!((b - want).abs() < 1e-6, "share {share}: {b} against {want}");
+                }
+            }
+        }
+        let e = lit
+            .clone()
+            .with_rendered_radiance(&renders, 1.5)
+            .unwrap_err();
+        assert!(e.to_string().contains("[0, 1]"), "{e}");
+        let e = (lit.clone())
+            .with_rendered_radiance(&renders[..2], 0.5)
+            .unwrap_err();
+        assert!(e.to_string().contains("rendered radiance views"), "{e}");
+        let mut short = renders.clone();
+        short[2].pop();
+        let e = lit.clone().with_rendered_radiance(&short, 0.5).unwrap_err();
+        assert!(e.to_string().contains("rendered radiance"), "{e}");
+        let mut nan = renders;
+        nan[0][9] = f32::NAN;
+        let e = lit.with_rendered_radiance(&nan, 0.5).unwrap_err();
+        assert!(e.to_string().contains("non-finite"), "{e}");
     }
 }

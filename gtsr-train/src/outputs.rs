@@ -283,10 +283,11 @@ fn extract_meshes(
         })
         .collect();
     let cameras = training_cameras(scene);
+    let blended = masks_with_rendered_radiance(trainer, scene, settings, coarse)?;
     let inputs = gtsr_eval::FusionInputs {
         views: &views,
         masked,
-        masks: settings.masks.as_ref(),
+        masks: blended.as_ref().or(settings.masks.as_ref()),
         footprint_cameras: &cameras,
         bounds: settings
             .bounds
@@ -315,6 +316,60 @@ fn extract_meshes(
         None
     };
     Ok((mesh, alone))
+}
+
+/// With [`gtsr_eval::MeshConfig::shading_radiance_rendered`] above 0, the masks whose images
+/// feed the shading refinement blended with the model's C_SH render of each training view,
+/// linear as the images are read; `None` where the refinement does not run (`coarse`, no
+/// images) or the trained views' size is not the masks' (the render would be resampled).
+fn masks_with_rendered_radiance(
+    trainer: &Trainer,
+    scene: &Scene,
+    settings: &MeshSettings,
+    coarse: bool,
+) -> Result<Option<gtsr_eval::MasksAlone>> {
+    let share = settings.config.shading_radiance_rendered;
+    let Some(masks) = settings.masks.as_ref().filter(|m| m.radiance.is_some()) else {
+        return Ok(None);
+    };
+    if share <= 0.0 || coarse || settings.config.shading_anchor <= 0.0 {
+        return Ok(None);
+    }
+    let views = trainer.views();
+    let same_size = views.len() == masks.views.len()
+        && (views.iter().zip(&masks.views))
+            .all(|(v, (c, _))| v.size() == (c.width as usize, c.height as usize));
+    if !same_size {
+        println!(
+            "mesh.shading_radiance_rendered: the trained views' size is not the masks', so the \
+             shading reads the images alone"
+        );
+        return Ok(None);
+    }
+    let t0 = Instant::now();
+    let model = trainer.model().detached();
+    let opts = trainer.render_options(trainer.steps_done(), false);
+    let rendered = (views.iter().zip(&scene.train))
+        .map(|(v, data)| {
+            let r = model.render(&v.camera, &v.rays, opts)?;
+            let img: Vec<f32> = host_vec(r.c_sh).iter().map(|x| x.clamp(0.0, 1.0)).collect();
+            let srgb = data.encoding == gtsr_data::Encoding::Srgb;
+            Ok(gtsr_eval::shading::linear_radiance(&img, srgb, None))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let blended = masks
+        .clone()
+        .with_rendered_radiance(&rendered, share)
+        .context("blending the rendered radiance into the images'")?;
+    println!(
+        "the shading reads {:.0} % of the model's render and {:.0} % of the images ({} views \
+         rendered in {:.1} s)",
+        100.0 * share,
+        100.0 * (1.0 - share),
+        rendered.len(),
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(Some(blended))
 }
 
 /// One fusion view's depth map as fused (zero where not fused; [`gtsr_eval::prepare_depth`]),
