@@ -2284,9 +2284,8 @@ mod tests {
         assert_eq!(dug(Vec3::Y), 0, "{notes:?}");
     }
 
-    /// The radiance given for the shading refinement must match the masks view for view.
-    #[test]
-    fn radiance_of_the_wrong_size_is_refused() {
+    /// Three identical 8x8 views of a centred 4x4 square mask, as masks.
+    fn three_square_views() -> MasksAlone {
         let camera = Camera::look_at(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, Vec3::Y, 0.5, 8, 8);
         let mut mask = vec![0.0f32; 64];
         for y in 2..6 {
@@ -2295,7 +2294,13 @@ mod tests {
             }
         }
         let views: Vec<(Camera, Vec<f32>)> = (0..3).map(|_| (camera, mask.clone())).collect();
-        let masks = MasksAlone::new(views).unwrap().expect("a cube of views");
+        MasksAlone::new(views).unwrap().expect("a cube of views")
+    }
+
+    /// The radiance given for the shading refinement must match the masks view for view.
+    #[test]
+    fn radiance_of_the_wrong_size_is_refused() {
+        let masks = three_square_views();
         let e = masks
             .clone()
             .with_radiance(vec![vec![0.5; 64]; 2])
@@ -2318,15 +2323,7 @@ mod tests {
     /// `share` of its render, pixel by pixel; the bad blends are refused by name.
     #[test]
     fn rendered_radiance_is_blended_by_its_share() {
-        let camera = Camera::look_at(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, Vec3::Y, 0.5, 8, 8);
-        let mut mask = vec![0.0f32; 64];
-        for y in 2..6 {
-            for x in 2..6 {
-                mask[y * 8 + x] = 1.0;
-            }
-        }
-        let views: Vec<(Camera, Vec<f32>)> = (0..3).map(|_| (camera, mask.clone())).collect();
-        let masks = MasksAlone::new(views).unwrap().expect("a cube of views");
+        let masks = three_square_views();
         let renders: Vec<Vec<f32>> = (0..3)
             .map(|k| (0..64).map(|p| 0.01 * (p + k) as f32).collect())
             .collect();

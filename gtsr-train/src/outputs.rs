@@ -321,7 +321,8 @@ fn extract_meshes(
 /// With [`gtsr_eval::MeshConfig::shading_radiance_rendered`] above 0, the masks whose images
 /// feed the shading refinement blended with the model's C_SH render of each training view,
 /// linear as the images are read; `None` where the refinement does not run (`coarse`, no
-/// images) or the trained views' size is not the masks' (the render would be resampled).
+/// images, no carving) or the trained views' size is not the masks' (the render would be
+/// resampled).
 fn masks_with_rendered_radiance(
     trainer: &Trainer,
     scene: &Scene,
@@ -332,7 +333,8 @@ fn masks_with_rendered_radiance(
     let Some(masks) = settings.masks.as_ref().filter(|m| m.radiance.is_some()) else {
         return Ok(None);
     };
-    if share <= 0.0 || coarse || settings.config.shading_anchor <= 0.0 {
+    let carving = settings.config.fusion == gtsr_eval::Fusion::Carve;
+    if share <= 0.0 || coarse || !carving || settings.config.shading_anchor <= 0.0 {
         return Ok(None);
     }
     let views = trainer.views();
