@@ -107,6 +107,8 @@ pub const DEFAULT_SHADING_SLACK: f32 = 4.0;
 pub const DEFAULT_SHADING_ROUNDS: usize = 6;
 /// The default of [`MeshConfig::shading_unscatter`].
 pub const DEFAULT_SHADING_UNSCATTER: bool = true;
+/// The default of [`MeshConfig::shading_radiance_rendered`]: the model's render alone.
+pub const DEFAULT_SHADING_RADIANCE_RENDERED: f32 = 1.0;
 /// The default of [`MeshConfig::shading_steep_tilt`], degrees.
 pub const DEFAULT_SHADING_STEEP_TILT: f32 = 60.0;
 /// The default of [`MeshConfig::shading_depth_threshold`], footprints.
@@ -210,8 +212,9 @@ pub struct MeshConfig {
     /// Carving, with the shading refinement: the share in `[0, 1]` of each view's radiance
     /// taken from the trained model's render of that view (C_SH, the images as the Gaussians
     /// reproduce them, without the images' per-pixel noise) instead of the image (0: the
-    /// images alone). The caller renders it ([`MasksAlone::with_rendered_radiance`]).
-    #[arg(skip)]
+    /// images alone), so that the refined mesh follows the model. The caller renders it
+    /// ([`MasksAlone::with_rendered_radiance`]).
+    #[arg(skip = DEFAULT_SHADING_RADIANCE_RENDERED)]
     pub shading_radiance_rendered: f32,
     /// With [`MeshConfig::shading_depth`]: the depth's offsets are trusted inward beyond this
     /// many footprints; the faces within it are asked to stay.
@@ -378,7 +381,7 @@ impl Default for MeshConfig {
             shading_anchor: DEFAULT_SHADING_ANCHOR,
             shading_depth: 0.0,
             shading_normals_rendered: 0.0,
-            shading_radiance_rendered: 0.0,
+            shading_radiance_rendered: DEFAULT_SHADING_RADIANCE_RENDERED,
             shading_depth_threshold: DEFAULT_SHADING_DEPTH_THRESHOLD,
             shading_shrink: true,
             shading_slack: DEFAULT_SHADING_SLACK,
