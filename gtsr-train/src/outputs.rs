@@ -354,7 +354,7 @@ fn masks_with_rendered_radiance(
     let rendered = (views.iter().zip(&scene.train))
         .map(|(v, data)| {
             let r = model.render(&v.camera, &v.rays, opts)?;
-            let img: Vec<f32> = host_vec(r.c_sh).iter().map(|x| x.clamp(0.0, 1.0)).collect();
+            let img = rendered_image(r.c_sh);
             let srgb = data.encoding == gtsr_data::Encoding::Srgb;
             Ok(gtsr_eval::shading::linear_radiance(&img, srgb, None))
         })
@@ -372,6 +372,11 @@ fn masks_with_rendered_radiance(
         t0.elapsed().as_secs_f64()
     );
     Ok(Some(blended))
+}
+
+/// A C_SH render as an image: its values on the host, clamped to `[0, 1]` as the images are.
+fn rendered_image(c_sh: burn::tensor::Tensor<3>) -> Vec<f32> {
+    host_vec(c_sh).iter().map(|x| x.clamp(0.0, 1.0)).collect()
 }
 
 /// One fusion view's depth map as fused (zero where not fused; [`gtsr_eval::prepare_depth`]),
@@ -442,7 +447,7 @@ pub fn evaluate(
     for (v, data) in tests.iter().zip(&scene.test) {
         let (w, h) = v.size();
         let r = model.render(&v.camera, &v.rays, opts)?;
-        let img: Vec<f32> = host_vec(r.c_sh).iter().map(|x| x.clamp(0.0, 1.0)).collect();
+        let img = rendered_image(r.c_sh);
         let pred = ImageRef::new(w, h, 3, &img);
         let gt_img = ImageRef::new(w, h, 3, &data.rgb);
         p += psnr(pred, gt_img, None)?.min(99.0);
