@@ -423,6 +423,24 @@ impl MeshConfig {
         }
     }
 
+    /// These settings for a quicker extraction (an evaluation during training): the shading
+    /// refinement in `shading_rounds` rounds instead of [`MeshConfig::shading_rounds`], or
+    /// not at all with 0 (each round after the first reads the normals again on the mesh the
+    /// last one moved).
+    pub fn with_shading_rounds(&self, shading_rounds: usize) -> MeshConfig {
+        if shading_rounds == 0 {
+            MeshConfig {
+                shading_anchor: 0.0,
+                ..self.clone()
+            }
+        } else {
+            MeshConfig {
+                shading_rounds,
+                ..self.clone()
+            }
+        }
+    }
+
     /// The edge profile [`MeshConfig::edge_sigma`] asks for (`None`: the measured one).
     pub fn edge_profile(&self) -> Option<crate::EdgeProfile> {
         self.edge_sigma.map(|sigma| {
@@ -830,7 +848,9 @@ pub struct FusionInputs<'a> {
     pub footprint_cameras: &'a [Camera],
     /// The box the mesh is extracted in.
     pub bounds: (Vec3, Vec3),
-    /// A quicker, coarser TSDF (2.5 times the voxel), for evaluations during training.
+    /// A quicker, coarser TSDF (2.5 times the voxel), for evaluations during training (the
+    /// carving's shading refinement is made quicker by the settings:
+    /// [`MeshConfig::with_shading_rounds`]).
     pub coarse: bool,
 }
 
@@ -920,7 +940,7 @@ fn depth_maps<'a>(
 /// from the bound, [`crate::hull_offset`]) where [`MeshConfig::carve`] agrees ([`crate::carve_mesh`]; the concavity gate
 /// compares each depth map with the masks' mesh ray cast from the same camera), then, with
 /// [`MeshConfig::cull_unobserved`], without the carved walls no depth map observes, and, with
-/// [`MeshConfig::shading_anchor`] and [`MasksAlone::radiance`] (not when `coarse`), refined by
+/// [`MeshConfig::shading_anchor`] and [`MasksAlone::radiance`], refined by
 /// the images' shading (and with [`MeshConfig::shading_depth`] the depth maps). Otherwise a
 /// TSDF of the depth maps on the box (voxel: [`crate::tsdf::default_voxel`] unless set), with
 /// the masks' hull kept in the volume when every view has a mask and
@@ -985,7 +1005,6 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
         let mut mesh =
             carve_inside_bound(config, inputs, masks, &maps, &hull_maps, offset, &mut notes)?;
         if config.shading_anchor > 0.0
-            && !inputs.coarse
             && let Some(images) = masks.shading_images()
         {
             let depth = (config.shading_depth > 0.0).then_some(DepthFrom {
@@ -2170,6 +2189,18 @@ mod tests {
         m
     }
 
+    /// The masks and radiance of `images`.
+    fn lit_masks(images: &[MeshView]) -> MasksAlone {
+        let masks = (images.iter())
+            .map(|v| (v.camera, v.mask.clone()))
+            .collect();
+        MasksAlone::new(masks)
+            .unwrap()
+            .expect("a sphere")
+            .with_radiance(images.iter().map(|v| v.radiance.clone()).collect())
+            .unwrap()
+    }
+
     /// The carving (no shading refinement, voxel 0.03, `min_lid` for
     /// [`MeshConfig::carve_min_lid_departure`]) of the masks and radiance of `images` by the
     /// depth of `depth`: the mesh, the masks' bound and the notes.
@@ -2178,14 +2209,7 @@ mod tests {
         depth: &[MeshView],
         min_lid: f32,
     ) -> (TriMesh, TriMesh, Vec<String>) {
-        let masks = (images.iter())
-            .map(|v| (v.camera, v.mask.clone()))
-            .collect();
-        let masks = MasksAlone::new(masks)
-            .unwrap()
-            .expect("a sphere")
-            .with_radiance(images.iter().map(|v| v.radiance.clone()).collect())
-            .unwrap();
+        let masks = lit_masks(images);
         let maps: Vec<Vec<f32>> = depth.iter().map(|v| v.depth.clone()).collect();
         let config = MeshConfig {
             carve_voxel: Some(0.03),
@@ -2285,6 +2309,71 @@ mod tests {
             dug(Vec3::NEG_Y)
         );
         assert_eq!(dug(Vec3::Y), 0, "{notes:?}");
+    }
+
+    /// A quicker extraction (`coarse`, an evaluation during training) still refines the mesh
+    /// by the shading, in the rounds its settings ask ([`MeshConfig::with_shading_rounds`]),
+    /// and leaves the carved bound as it is with none: on a dented sphere's Lambertian images
+    /// one round sinks the dent the masks cannot see, and the later rounds further.
+    #[test]
+    fn a_coarse_extraction_refines_by_the_shading_in_its_rounds() {
+        let (radius, size) = (0.8, 64);
+        let footprint = 0.5 * sphere_footprint_32();
+        let views = mesh_views(
+            &dented_sphere(radius, 6.0 * footprint, &[Vec3::NEG_Y]),
+            24,
+            size,
+        );
+        let masks = lit_masks(&views);
+        // No depth: nothing is carved (the bound is remeshed on the carving's grid), and the
+        // refinement alone moves it.
+        let empty = vec![0.0f32; (size * size) as usize];
+        let fusion: Vec<FusionView<'_>> = (masks.views.iter())
+            .map(|(camera, mask)| FusionView {
+                camera,
+                depth: &empty,
+                mask,
+                normal: &[],
+            })
+            .collect();
+        let cameras: Vec<Camera> = masks.views.iter().map(|(c, _)| *c).collect();
+        let inputs = FusionInputs {
+            views: &fusion,
+            masked: true,
+            masks: Some(&masks),
+            footprint_cameras: &cameras,
+            bounds: (Vec3::splat(-1.2), Vec3::splat(1.2)),
+            coarse: true,
+        };
+        let config = MeshConfig {
+            carve_voxel: Some(0.03),
+            ..MeshConfig::default()
+        };
+        let (bound, notes) = extract_mesh(&config.with_shading_rounds(0), &inputs).unwrap();
+        assert!(!notes.iter().any(|n| n.contains("round(s)")), "{notes:?}");
+        let bound = &bound;
+        let one = config.with_shading_rounds(1);
+        assert_eq!(one.shading_anchor, config.shading_anchor);
+        let (refined, notes) = extract_mesh(&one, &inputs).unwrap();
+        assert!(notes.iter().any(|n| n.contains(" 1 round(s)")), "{notes:?}");
+        // The vertices over the dent's centre, deepest on the truth, sink.
+        let under_dent = |m: &TriMesh| {
+            let depths: Vec<f32> = (m.positions.iter())
+                .filter(|p| p.dot(Vec3::NEG_Y) > 0.97 * p.length())
+                .map(|p| radius - p.length())
+                .collect();
+            depths.iter().sum::<f32>() / depths.len().max(1) as f32
+        };
+        let (all, _) = extract_mesh(&config, &inputs).unwrap();
+        assert!(
+            under_dent(&refined) > under_dent(bound) + 0.05 * footprint
+                && under_dent(&all) > under_dent(&refined) + 0.01 * footprint,
+            "the dent {} deep after one round, {} after all, {} on the bound (footprint \
+             {footprint}); {notes:?}",
+            under_dent(&refined),
+            under_dent(&all),
+            under_dent(bound)
+        );
     }
 
     /// Three identical 8x8 views of a centred 4x4 square mask, as masks.

@@ -15,6 +15,10 @@ use clap::{CommandFactory, FromArgMatches, Parser, ValueEnum};
 use gtsr_eval::MeshConfig;
 use gtsr_model::config::{Preset, TrainConfig};
 
+/// The default of [`Args::eval_shading_rounds`]: one round, so that the in-run mesh follows
+/// the model at a fraction of the whole refinement's time.
+pub const DEFAULT_EVAL_SHADING_ROUNDS: usize = 1;
+
 /// Reconstruct the surface of a translucent object from posed images (GTSR).
 ///
 /// Every training and mesh setting below is also a field of the run's `config.json`; `--config`
@@ -68,6 +72,12 @@ pub struct Args {
     /// (0: none; the final evaluation always runs).
     #[arg(long, default_value_t = 10)]
     pub eval_points: usize,
+    /// Rounds of the carving's shading refinement in the evaluations along the run (0: none,
+    /// the in-run mesh is the carved bound; the final extraction runs all of
+    /// `mesh.shading_rounds`). With the refinement reading the model's render
+    /// (`mesh.shading_radiance_rendered`) the curve's chamfer follows the training.
+    #[arg(long, default_value_t = DEFAULT_EVAL_SHADING_ROUNDS)]
+    pub eval_shading_rounds: usize,
     /// Time every step by phase (kernels, Burn ops, Adam, densification) and print the mean
     /// per stage at the end (also written to `profile.md` in `--out`).
     #[arg(long)]

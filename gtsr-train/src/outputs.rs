@@ -36,6 +36,9 @@ pub struct MeshSettings {
     /// The masks alone scored against the ground truth the training cameras see
     /// ([`score_masks_alone`], once per run): the baseline beside every mesh.
     pub masks_alone: Option<MeshMetrics>,
+    /// The shading refinement's rounds in the evaluations along the run (0: none;
+    /// [`gtsr_eval::MeshConfig::with_shading_rounds`]).
+    pub in_run_shading_rounds: usize,
 }
 
 /// The masks' mesh of `masks` against the ground truth `gt` that the training cameras see, split
@@ -257,6 +260,15 @@ fn extract_meshes(
         settings.fusion_views.iter().collect()
     };
     let masked = host_views.iter().all(|v| v.mask.is_some());
+    let in_run;
+    let config = if coarse {
+        in_run = settings
+            .config
+            .with_shading_rounds(settings.in_run_shading_rounds);
+        &in_run
+    } else {
+        &settings.config
+    };
     let maps = host_views
         .iter()
         .enumerate()
@@ -283,7 +295,7 @@ fn extract_meshes(
         })
         .collect();
     let cameras = training_cameras(scene);
-    let blended = masks_with_rendered_radiance(trainer, scene, settings, coarse)?;
+    let blended = masks_with_rendered_radiance(trainer, scene, settings, config, coarse)?;
     let inputs = gtsr_eval::FusionInputs {
         views: &views,
         masked,
@@ -294,16 +306,15 @@ fn extract_meshes(
             .unwrap_or_else(|| mesh_bounds(trainer.model())),
         coarse,
     };
-    let (mesh, notes) = gtsr_eval::extract_mesh(&settings.config, &inputs)?;
+    let (mesh, notes) = gtsr_eval::extract_mesh(config, &inputs)?;
     if !coarse {
         for n in notes {
             println!("{n}");
         }
     }
-    let alone = if depth_only && settings.config.fuse_depth && uses_masks(&settings.config, masked)
-    {
+    let alone = if depth_only && config.fuse_depth && uses_masks(config, masked) {
         let t0 = Instant::now();
-        let m = gtsr_eval::extract_mesh(&settings.config.depth_only(), &inputs)?.0;
+        let m = gtsr_eval::extract_mesh(&config.depth_only(), &inputs)?.0;
         if !coarse {
             println!(
                 "the depth alone fused (TSDF, no masks): {} triangles ({:.1} s)",
@@ -318,23 +329,24 @@ fn extract_meshes(
     Ok((mesh, alone))
 }
 
-/// With [`gtsr_eval::MeshConfig::shading_radiance_rendered`] above 0, the masks whose images
-/// feed the shading refinement blended with the model's C_SH render of each training view,
-/// linear as the images are read; `None` where the refinement does not run (`coarse`, no
-/// images, no carving) or the trained views' size is not the masks' (the render would be
-/// resampled).
+/// With [`gtsr_eval::MeshConfig::shading_radiance_rendered`] above 0 in `config`, the masks
+/// whose images feed the shading refinement blended with the model's C_SH render of each
+/// training view, linear as the images are read; `None` where the refinement does not run (no
+/// images, no carving, no anchor) or the trained views' size is not the masks' (the render
+/// would be resampled). What it did is printed unless `coarse`.
 fn masks_with_rendered_radiance(
     trainer: &Trainer,
     scene: &Scene,
     settings: &MeshSettings,
+    config: &gtsr_eval::MeshConfig,
     coarse: bool,
 ) -> Result<Option<gtsr_eval::MasksAlone>> {
-    let share = settings.config.shading_radiance_rendered;
+    let share = config.shading_radiance_rendered;
     let Some(masks) = settings.masks.as_ref().filter(|m| m.radiance.is_some()) else {
         return Ok(None);
     };
-    let carving = settings.config.fusion == gtsr_eval::Fusion::Carve;
-    if share <= 0.0 || coarse || !carving || settings.config.shading_anchor <= 0.0 {
+    let carving = config.fusion == gtsr_eval::Fusion::Carve;
+    if share <= 0.0 || !carving || config.shading_anchor <= 0.0 {
         return Ok(None);
     }
     let views = trainer.views();
@@ -342,10 +354,12 @@ fn masks_with_rendered_radiance(
         && (views.iter().zip(&masks.views))
             .all(|(v, (c, _))| v.size() == (c.width as usize, c.height as usize));
     if !same_size {
-        println!(
-            "mesh.shading_radiance_rendered: the trained views' size is not the masks', so the \
-             shading reads the images alone"
-        );
+        if !coarse {
+            println!(
+                "mesh.shading_radiance_rendered: the trained views' size is not the masks', so \
+                 the shading reads the images alone"
+            );
+        }
         return Ok(None);
     }
     let t0 = Instant::now();
@@ -363,14 +377,16 @@ fn masks_with_rendered_radiance(
         .clone()
         .with_rendered_radiance(&rendered, share)
         .context("blending the rendered radiance into the images'")?;
-    println!(
-        "the shading reads {:.0} % of the model's render and {:.0} % of the images ({} views \
-         rendered in {:.1} s)",
-        100.0 * share,
-        100.0 * (1.0 - share),
-        rendered.len(),
-        t0.elapsed().as_secs_f64()
-    );
+    if !coarse {
+        println!(
+            "the shading reads {:.0} % of the model's render and {:.0} % of the images ({} \
+             views rendered in {:.1} s)",
+            100.0 * share,
+            100.0 * (1.0 - share),
+            rendered.len(),
+            t0.elapsed().as_secs_f64()
+        );
+    }
     Ok(Some(blended))
 }
 

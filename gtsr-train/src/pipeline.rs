@@ -695,6 +695,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
         masks_alone: outputs::score_masks_alone(masks.as_ref(), gt_mesh.as_ref(), &scene)?,
         masks,
         bounds: outputs::hull_bounds(&scene.train)?,
+        in_run_shading_rounds: args.eval_shading_rounds,
     };
 
     let stop = Arc::new(AtomicBool::new(false));
