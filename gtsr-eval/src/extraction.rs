@@ -1868,6 +1868,16 @@ mod tests {
         maps: &[Vec<f32>],
         config: &MeshConfig,
     ) -> Result<(TriMesh, Vec<String>)> {
+        sphere_try_extract_as(masks, maps, config, false)
+    }
+
+    /// [`sphere_try_extract`], quicker with `coarse` ([`FusionInputs::coarse`]).
+    fn sphere_try_extract_as(
+        masks: &MasksAlone,
+        maps: &[Vec<f32>],
+        config: &MeshConfig,
+        coarse: bool,
+    ) -> Result<(TriMesh, Vec<String>)> {
         let views: Vec<FusionView<'_>> = (masks.views.iter().zip(maps))
             .map(|((camera, mask), depth)| FusionView {
                 camera,
@@ -1883,7 +1893,7 @@ mod tests {
             masks: Some(masks),
             footprint_cameras: &cameras,
             bounds: (Vec3::splat(-1.2), Vec3::splat(1.2)),
-            coarse: false,
+            coarse,
         };
         extract_mesh(config, &inputs)
     }
@@ -2327,34 +2337,19 @@ mod tests {
         let masks = lit_masks(&views);
         // No depth: nothing is carved (the bound is remeshed on the carving's grid), and the
         // refinement alone moves it.
-        let empty = vec![0.0f32; (size * size) as usize];
-        let fusion: Vec<FusionView<'_>> = (masks.views.iter())
-            .map(|(camera, mask)| FusionView {
-                camera,
-                depth: &empty,
-                mask,
-                normal: &[],
-            })
-            .collect();
-        let cameras: Vec<Camera> = masks.views.iter().map(|(c, _)| *c).collect();
-        let inputs = FusionInputs {
-            views: &fusion,
-            masked: true,
-            masks: Some(&masks),
-            footprint_cameras: &cameras,
-            bounds: (Vec3::splat(-1.2), Vec3::splat(1.2)),
-            coarse: true,
-        };
+        let empty = vec![vec![0.0f32; (size * size) as usize]; views.len()];
+        let extract =
+            |config: &MeshConfig| sphere_try_extract_as(&masks, &empty, config, true).unwrap();
         let config = MeshConfig {
             carve_voxel: Some(0.03),
             ..MeshConfig::default()
         };
-        let (bound, notes) = extract_mesh(&config.with_shading_rounds(0), &inputs).unwrap();
+        let (bound, notes) = extract(&config.with_shading_rounds(0));
         assert!(!notes.iter().any(|n| n.contains("round(s)")), "{notes:?}");
         let bound = &bound;
         let one = config.with_shading_rounds(1);
         assert_eq!(one.shading_anchor, config.shading_anchor);
-        let (refined, notes) = extract_mesh(&one, &inputs).unwrap();
+        let (refined, notes) = extract(&one);
         assert!(notes.iter().any(|n| n.contains(" 1 round(s)")), "{notes:?}");
         // The vertices over the dent's centre, deepest on the truth, sink.
         let under_dent = |m: &TriMesh| {
@@ -2364,7 +2359,7 @@ mod tests {
                 .collect();
             depths.iter().sum::<f32>() / depths.len().max(1) as f32
         };
-        let (all, _) = extract_mesh(&config, &inputs).unwrap();
+        let (all, _) = extract(&config);
         assert!(
             under_dent(&refined) > under_dent(bound) + 0.05 * footprint
                 && under_dent(&all) > under_dent(&refined) + 0.01 * footprint,
