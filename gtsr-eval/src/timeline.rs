@@ -1,7 +1,8 @@
 //! Error against run time: a log of evaluation points during training, written as CSV and
-//! plotted as PNG (PSNR against training time, and the chamfer and the depth error against
-//! training time when any point has them; the chamfer panel also draws the mesh fused from the
-//! rendered depth alone, dashed, and the masks alone, dotted).
+//! plotted as PNG (PSNR against training time, and the chamfer, the completeness split by the
+//! masks' blindness and the depth error against training time when any point has them; the
+//! chamfer panel also draws the mesh fused from the rendered depth alone, dashed, and the masks
+//! alone, dotted).
 
 use std::path::Path;
 
@@ -37,6 +38,20 @@ pub struct TimelinePoint {
     /// bounded by the masks and does not move.
     #[serde(default)]
     pub depth_error: Option<f64>,
+    /// Mean distance from the ground truth the masks' hull is blind to (the part of
+    /// [`crate::HullBlind`], farther than its threshold from the hull) to the extracted
+    /// mesh: the part only the shading can place.
+    #[serde(default)]
+    pub blind_completeness: Option<f64>,
+    /// Mean distance from the rest of the (seen) ground truth to the extracted mesh.
+    #[serde(default)]
+    pub rest_completeness: Option<f64>,
+    /// [`TimelinePoint::blind_completeness`] of the masks alone (the same at every point).
+    #[serde(default)]
+    pub masks_alone_blind_completeness: Option<f64>,
+    /// [`TimelinePoint::rest_completeness`] of the masks alone (the same at every point).
+    #[serde(default)]
+    pub masks_alone_rest_completeness: Option<f64>,
     /// Number of Gaussians.
     pub gaussians: u64,
     /// Free-form label (for example the method or the evaluation split); [`FINAL_LABEL`]
@@ -59,11 +74,20 @@ pub struct Timeline {
 /// The CSV header [`Timeline::write_csv`] writes. [`Timeline::read_csv`] reads the columns by
 /// name and also takes logs without the optional ones ([`OPTIONAL_COLUMNS`]).
 pub const CSV_HEADER: &str = "iteration,train_seconds,psnr,ssim,chamfer,depth_only_chamfer,\
-                              masks_alone_chamfer,depth_error,gaussians,label";
+                              masks_alone_chamfer,depth_error,blind_completeness,\
+                              rest_completeness,masks_alone_blind_completeness,\
+                              masks_alone_rest_completeness,gaussians,label";
 
 /// The columns older logs lack (each read as missing).
-pub const OPTIONAL_COLUMNS: [&str; 3] =
-    ["depth_only_chamfer", "masks_alone_chamfer", "depth_error"];
+pub const OPTIONAL_COLUMNS: [&str; 7] = [
+    "depth_only_chamfer",
+    "masks_alone_chamfer",
+    "depth_error",
+    "blind_completeness",
+    "rest_completeness",
+    "masks_alone_blind_completeness",
+    "masks_alone_rest_completeness",
+];
 
 fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n', '\r']) {
@@ -128,21 +152,22 @@ impl Timeline {
     pub fn to_csv(&self) -> String {
         let mut s = String::from(CSV_HEADER);
         s.push('\n');
+        let opt = |v: Option<f64>| v.map(|c| c.to_string()).unwrap_or_default();
         for p in &self.points {
             s.push_str(&format!(
-                "{},{},{},{},{},{},{},{},{},{}\n",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                 p.iteration,
                 p.train_seconds,
                 p.psnr,
                 p.ssim,
-                p.chamfer.map(|c| c.to_string()).unwrap_or_default(),
-                p.depth_only_chamfer
-                    .map(|c| c.to_string())
-                    .unwrap_or_default(),
-                p.masks_alone_chamfer
-                    .map(|c| c.to_string())
-                    .unwrap_or_default(),
-                p.depth_error.map(|c| c.to_string()).unwrap_or_default(),
+                opt(p.chamfer),
+                opt(p.depth_only_chamfer),
+                opt(p.masks_alone_chamfer),
+                opt(p.depth_error),
+                opt(p.blind_completeness),
+                opt(p.rest_completeness),
+                opt(p.masks_alone_blind_completeness),
+                opt(p.masks_alone_rest_completeness),
                 p.gaussians,
                 csv_field(&p.label)
             ));
@@ -216,6 +241,10 @@ impl Timeline {
                 depth_only_chamfer: optional("depth_only_chamfer")?,
                 masks_alone_chamfer: optional("masks_alone_chamfer")?,
                 depth_error: optional("depth_error")?,
+                blind_completeness: optional("blind_completeness")?,
+                rest_completeness: optional("rest_completeness")?,
+                masks_alone_blind_completeness: optional("masks_alone_blind_completeness")?,
+                masks_alone_rest_completeness: optional("masks_alone_rest_completeness")?,
                 gaussians: int("gaussians")?,
                 label: column("label").map(|i| f[i].clone()).unwrap_or_default(),
             });
@@ -290,8 +319,10 @@ fn range_of(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
     Some((lo - pad, hi + pad))
 }
 
-/// Plot size in pixels.
+/// Plot size in pixels, up to three panels.
 const PLOT_SIZE: (u32, u32) = (1400, 560);
+/// The least width of one panel in pixels: a plot of more panels widens.
+const PANEL_MIN_WIDTH: u32 = 465;
 
 /// Height of one legend row in pixels at the legend's 16 px font, with its spacing.
 const LEGEND_ROW_PX: f64 = 22.0;
@@ -313,8 +344,9 @@ fn legend_headroom(entries: usize, panel_px: u32) -> f64 {
 }
 
 /// Draws PSNR against training time (left panel) and, when any point has them, the chamfer
-/// distance and the depth error against training time on log axes (further panels), one
-/// line per series with a legend, a series' final evaluation ([`FINAL_LABEL`]) as a cross
+/// distance, the completeness on the hull-blind part and elsewhere, and the depth error
+/// against training time on log axes (further panels; 1400 x 560 px up to three panels, wider
+/// with four), one line per series with a legend, a series' final evaluation ([`FINAL_LABEL`]) as a cross
 /// off its line, and writes the PNG to `path` atomically. Errors when no series has a point.
 pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
     let plot_err = |message: String| EvalError::Plot {
@@ -353,6 +385,32 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
             ],
         },
         LogPanel {
+            caption: "Completeness by the masks' blindness",
+            y_desc: "ground truth to mesh, mean (log scale)",
+            curves: vec![
+                LogCurve {
+                    get: |p| p.blind_completeness,
+                    suffix: ", hull-blind",
+                    stroke: Stroke::Solid,
+                },
+                LogCurve {
+                    get: |p| p.rest_completeness,
+                    suffix: ", elsewhere",
+                    stroke: Stroke::Dashed,
+                },
+                LogCurve {
+                    get: |p| p.masks_alone_blind_completeness,
+                    suffix: ", masks alone (hull-blind)",
+                    stroke: Stroke::Dotted,
+                },
+                LogCurve {
+                    get: |p| p.masks_alone_rest_completeness,
+                    suffix: ", masks alone (elsewhere)",
+                    stroke: Stroke::Dotted,
+                },
+            ],
+        },
+        LogPanel {
             caption: "Depth error vs training time",
             y_desc: "median |depth error| (log scale)",
             curves: vec![LogCurve {
@@ -366,6 +424,7 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
     .filter(|panel| !panel.values(all()).is_empty())
     .collect();
     let (w, h) = PLOT_SIZE;
+    let w = w.max(PANEL_MIN_WIDTH * (1 + log_panels.len() as u32));
     let mut buf = vec![255u8; (w * h * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();

@@ -106,6 +106,10 @@ fn plot_subcommand_writes_a_png() {
             depth_only_chamfer: None,
             masks_alone_chamfer: None,
             depth_error: None,
+            blind_completeness: None,
+            rest_completeness: None,
+            masks_alone_blind_completeness: None,
+            masks_alone_rest_completeness: None,
             gaussians: 1000,
             label: "run".into(),
         });

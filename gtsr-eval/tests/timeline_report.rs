@@ -21,11 +21,22 @@ fn timeline_with(label: &str, scale: f64, with_chamfer: bool, with_depth: bool) 
                 .then(|| 0.04 / (1.0 + 0.5 * k as f64)),
             masks_alone_chamfer: (with_chamfer && with_depth).then_some(0.03),
             depth_error: (with_depth && k > 0).then(|| 0.02 / (k as f64).sqrt()),
+            blind_completeness: None,
+            rest_completeness: None,
+            masks_alone_blind_completeness: None,
+            masks_alone_rest_completeness: None,
             gaussians: 10_000 + 5_000 * k,
             label: label.to_string(),
         });
     }
     t
+}
+
+/// How many pixels of columns `x0..x1` differ between two images of one size.
+fn differing_pixels(a: &image::RgbImage, b: &image::RgbImage, x0: u32, x1: u32) -> usize {
+    (a.enumerate_pixels().zip(b.pixels()))
+        .filter(|((x, _, p), q)| *x >= x0 && *x < x1 && p != q)
+        .count()
 }
 
 #[test]
@@ -149,11 +160,7 @@ fn plots_are_written_as_png() {
         let path = dir.path().join("fewer.png");
         plot_png(&path, &[("gtsr", &fewer)]).unwrap();
         let img_fewer = image::open(&path).unwrap().to_rgb8();
-        let differ = |x0: u32, x1: u32| {
-            (img3.enumerate_pixels().zip(img_fewer.pixels()))
-                .filter(|((x, _, p), q)| *x >= x0 && *x < x1 && p != q)
-                .count()
-        };
+        let differ = |x0, x1| differing_pixels(&img3, &img_fewer, x0, x1);
         assert!(differ(467, 933) > 100, "{}", differ(467, 933));
         assert_eq!((differ(0, 466), differ(934, 1400)), (0, 0));
     }
@@ -334,4 +341,67 @@ fn the_legend_covers_no_curve() {
         })
         .count();
     assert_eq!(pink, 0, "{pink} pixels of curve under the legend");
+}
+
+/// The completeness split by the masks' blindness travels through the CSV, older logs read
+/// without it, and a timeline that has it gets a panel of its own (the plot widens to four
+/// panels) whose curves move with the values.
+#[test]
+fn the_completeness_split_is_kept_and_drawn_in_its_own_panel() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = timeline_with("gtsr", 1.0, true, true);
+    let mut t = base.clone();
+    for (k, p) in t.points.iter_mut().enumerate() {
+        p.blind_completeness = Some(0.14 - 0.005 * k as f64);
+        p.rest_completeness = Some(0.0004 / (1.0 + k as f64));
+        p.masks_alone_blind_completeness = Some(0.146);
+        p.masks_alone_rest_completeness = Some(0.00054);
+    }
+    let path = dir.path().join("timeline.csv");
+    t.write_csv(&path).unwrap();
+    assert_eq!(Timeline::read_csv(&path).unwrap(), t);
+    // A log of the ten columns before the split reads with the split missing.
+    std::fs::write(
+        &path,
+        "iteration,train_seconds,psnr,ssim,chamfer,depth_only_chamfer,masks_alone_chamfer,\
+         depth_error,gaussians,label\n1,2,3,0.5,0.01,,0.02,0.03,5,a\n",
+    )
+    .unwrap();
+    let old = Timeline::read_csv(&path).unwrap();
+    assert_eq!(
+        (old.points[0].masks_alone_chamfer, old.points[0].depth_error),
+        (Some(0.02), Some(0.03))
+    );
+    assert!(old.points[0].blind_completeness.is_none());
+    assert!(old.points[0].masks_alone_rest_completeness.is_none());
+
+    let (with, without) = (dir.path().join("with.png"), dir.path().join("without.png"));
+    plot_png(&with, &[("gtsr", &t)]).unwrap();
+    plot_png(&without, &[("gtsr", &base)]).unwrap();
+    let (a, b) = (
+        image::open(&with).unwrap().to_rgb8(),
+        image::open(&without).unwrap().to_rgb8(),
+    );
+    assert_eq!(b.dimensions(), (1400, 560));
+    let (w, h) = a.dimensions();
+    assert!(w >= 4 * 465 && h == 560, "{w}x{h}");
+    // The third of four panels holds the split: drawn, and changed when a value changes.
+    let panel = (w / 2, 3 * w / 4);
+    let drawn = a
+        .enumerate_pixels()
+        .filter(|(x, _, p)| *x >= panel.0 && *x < panel.1 && p.0 != [255, 255, 255])
+        .count();
+    assert!(drawn > 1000, "{drawn}");
+    let mut moved = t.clone();
+    moved.points[3].rest_completeness = Some(0.004);
+    let path = dir.path().join("moved.png");
+    plot_png(&path, &[("gtsr", &moved)]).unwrap();
+    let m = image::open(&path).unwrap().to_rgb8();
+    let differ = |x0, x1| differing_pixels(&a, &m, x0, x1);
+    assert!(
+        differ(panel.0, panel.1) > 100,
+        "{}",
+        differ(panel.0, panel.1)
+    );
+    assert_eq!((differ(0, w / 2), differ(3 * w / 4, w)), (0, 0));
 }

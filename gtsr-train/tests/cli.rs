@@ -127,6 +127,19 @@ fn trains_a_tiny_scene_and_writes_every_output() {
     let blind = &m["mesh"]["hull_blind"];
     assert!(blind["fraction"].as_f64().unwrap() >= 0.0, "{m}");
     assert!(blind["rest"].as_f64().unwrap() > 0.0, "{m}");
+    // The curve's final point carries the same split, where the truth has a hull-blind part.
+    let close = |x: Option<f64>, key: &str| {
+        let want = blind[key].as_f64().unwrap();
+        x.is_some_and(|x| (x - want).abs() <= 1e-12 * want.abs())
+    };
+    if blind["fraction"].as_f64().unwrap() > 0.0 {
+        assert!(close(last[0].blind_completeness, "blind"), "{m}");
+        assert!(close(last[0].rest_completeness, "rest"), "{m}");
+        assert!(last[0].masks_alone_rest_completeness.is_some(), "{m}");
+    } else {
+        assert_eq!(last[0].blind_completeness, None);
+        assert_eq!(last[0].rest_completeness, None);
+    }
     // Every view has a mask, so the surface set starts inside them and the mask term is on.
     let c: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("config.json")).unwrap()).unwrap();
