@@ -273,6 +273,16 @@ struct LogCurve {
     stroke: Stroke,
 }
 
+impl LogCurve {
+    fn new(get: fn(&TimelinePoint) -> Option<f64>, suffix: &'static str, stroke: Stroke) -> Self {
+        LogCurve {
+            get,
+            suffix,
+            stroke,
+        }
+    }
+}
+
 /// A panel of [`plot_png`] with a log axis.
 struct LogPanel {
     caption: &'static str,
@@ -367,57 +377,33 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
             caption: "Chamfer vs training time",
             y_desc: "chamfer distance (log scale)",
             curves: vec![
-                LogCurve {
-                    get: |p| p.chamfer,
-                    suffix: "",
-                    stroke: Stroke::Solid,
-                },
-                LogCurve {
-                    get: |p| p.depth_only_chamfer,
-                    suffix: ", depth alone",
-                    stroke: Stroke::Dashed,
-                },
-                LogCurve {
-                    get: |p| p.masks_alone_chamfer,
-                    suffix: ", masks alone",
-                    stroke: Stroke::Dotted,
-                },
+                LogCurve::new(|p| p.chamfer, "", Stroke::Solid),
+                LogCurve::new(|p| p.depth_only_chamfer, ", depth alone", Stroke::Dashed),
+                LogCurve::new(|p| p.masks_alone_chamfer, ", masks alone", Stroke::Dotted),
             ],
         },
         LogPanel {
             caption: "Completeness by the masks' blindness",
             y_desc: "ground truth to mesh, mean (log scale)",
             curves: vec![
-                LogCurve {
-                    get: |p| p.blind_completeness,
-                    suffix: ", hull-blind",
-                    stroke: Stroke::Solid,
-                },
-                LogCurve {
-                    get: |p| p.rest_completeness,
-                    suffix: ", elsewhere",
-                    stroke: Stroke::Dashed,
-                },
-                LogCurve {
-                    get: |p| p.masks_alone_blind_completeness,
-                    suffix: ", masks alone (hull-blind)",
-                    stroke: Stroke::Dotted,
-                },
-                LogCurve {
-                    get: |p| p.masks_alone_rest_completeness,
-                    suffix: ", masks alone (elsewhere)",
-                    stroke: Stroke::Dotted,
-                },
+                LogCurve::new(|p| p.blind_completeness, ", hull-blind", Stroke::Solid),
+                LogCurve::new(|p| p.rest_completeness, ", elsewhere", Stroke::Dashed),
+                LogCurve::new(
+                    |p| p.masks_alone_blind_completeness,
+                    ", masks alone (hull-blind)",
+                    Stroke::Dotted,
+                ),
+                LogCurve::new(
+                    |p| p.masks_alone_rest_completeness,
+                    ", masks alone (elsewhere)",
+                    Stroke::Dotted,
+                ),
             ],
         },
         LogPanel {
             caption: "Depth error vs training time",
             y_desc: "median |depth error| (log scale)",
-            curves: vec![LogCurve {
-                get: |p| p.depth_error,
-                suffix: "",
-                stroke: Stroke::Solid,
-            }],
+            curves: vec![LogCurve::new(|p| p.depth_error, "", Stroke::Solid)],
         },
     ]
     .into_iter()

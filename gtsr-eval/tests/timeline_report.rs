@@ -32,6 +32,12 @@ fn timeline_with(label: &str, scale: f64, with_chamfer: bool, with_depth: bool) 
     t
 }
 
+/// `series` plotted to `path` ([`plot_png`]) and read back.
+fn plotted(path: &std::path::Path, series: &[(&str, &Timeline)]) -> image::RgbImage {
+    plot_png(path, series).unwrap();
+    image::open(path).unwrap().to_rgb8()
+}
+
 /// How many pixels of columns `x0..x1` differ between two images of one size.
 fn differing_pixels(a: &image::RgbImage, b: &image::RgbImage, x0: u32, x1: u32) -> usize {
     (a.enumerate_pixels().zip(b.pixels()))
@@ -124,8 +130,7 @@ fn plots_are_written_as_png() {
     let dir = tempfile::tempdir().unwrap();
     let (a, b) = (timeline("a", 1.0, true), timeline("b", 1.3, false));
     let two = dir.path().join("two.png");
-    plot_png(&two, &[("gtsr", &a), ("pgsr", &b)]).unwrap();
-    let img = image::open(&two).unwrap().to_rgb8();
+    let img = plotted(&two, &[("gtsr", &a), ("pgsr", &b)]);
     assert_eq!(img.dimensions(), (1400, 560));
     // Something other than white background was drawn in both halves.
     let non_white = |x0: u32, x1: u32| {
@@ -140,8 +145,7 @@ fn plots_are_written_as_png() {
     // A third panel when a series has depth errors.
     let three = dir.path().join("three.png");
     let c = timeline_with("c", 1.0, true, true);
-    plot_png(&three, &[("gtsr", &c)]).unwrap();
-    let img3 = image::open(&three).unwrap().to_rgb8();
+    let img3 = plotted(&three, &[("gtsr", &c)]);
     let drawn = |x0: u32, x1: u32| {
         img3.enumerate_pixels()
             .filter(|(x, _, p)| *x >= x0 && *x < x1 && p.0 != [255, 255, 255])
@@ -158,8 +162,7 @@ fn plots_are_written_as_png() {
         let mut fewer = c.clone();
         fewer.points.iter_mut().for_each(clear);
         let path = dir.path().join("fewer.png");
-        plot_png(&path, &[("gtsr", &fewer)]).unwrap();
-        let img_fewer = image::open(&path).unwrap().to_rgb8();
+        let img_fewer = plotted(&path, &[("gtsr", &fewer)]);
         let differ = |x0, x1| differing_pixels(&img3, &img_fewer, x0, x1);
         assert!(differ(467, 933) > 100, "{}", differ(467, 933));
         assert_eq!((differ(0, 466), differ(934, 1400)), (0, 0));
@@ -197,11 +200,9 @@ fn the_final_evaluation_is_one_point_drawn_off_the_curve() {
     assert_eq!(Timeline::read_csv(&path).unwrap(), t);
     // The same values as the curve's last point: the plots differ by the cross alone.
     let (with, without) = (dir.path().join("with.png"), dir.path().join("without.png"));
-    plot_png(&with, &[("gtsr", &t)]).unwrap();
-    plot_png(&without, &[("gtsr", &base)]).unwrap();
     let (a, b) = (
-        image::open(&with).unwrap().to_rgb8(),
-        image::open(&without).unwrap().to_rgb8(),
+        plotted(&with, &[("gtsr", &t)]),
+        plotted(&without, &[("gtsr", &base)]),
     );
     let differ = a.pixels().zip(b.pixels()).filter(|(p, q)| p != q).count();
     assert!(differ > 20, "{differ} pixels differ");
@@ -312,8 +313,7 @@ fn the_legend_covers_no_curve() {
         p.masks_alone_chamfer = Some(0.004);
     }
     let path = dir.path().join("rising.png");
-    plot_png(&path, &[("gtsr", &t)]).unwrap();
-    let img = image::open(&path).unwrap().to_rgb8();
+    let img = plotted(&path, &[("gtsr", &t)]);
     // The chamfer panel is the middle third. In its upper right quarter the legend's frame
     // is the only long black horizontal run: its top and bottom rows and its columns.
     let (w, h) = img.dimensions();
@@ -376,11 +376,9 @@ fn the_completeness_split_is_kept_and_drawn_in_its_own_panel() {
     assert!(old.points[0].masks_alone_rest_completeness.is_none());
 
     let (with, without) = (dir.path().join("with.png"), dir.path().join("without.png"));
-    plot_png(&with, &[("gtsr", &t)]).unwrap();
-    plot_png(&without, &[("gtsr", &base)]).unwrap();
     let (a, b) = (
-        image::open(&with).unwrap().to_rgb8(),
-        image::open(&without).unwrap().to_rgb8(),
+        plotted(&with, &[("gtsr", &t)]),
+        plotted(&without, &[("gtsr", &base)]),
     );
     assert_eq!(b.dimensions(), (1400, 560));
     let (w, h) = a.dimensions();
@@ -395,8 +393,7 @@ fn the_completeness_split_is_kept_and_drawn_in_its_own_panel() {
     let mut moved = t.clone();
     moved.points[3].rest_completeness = Some(0.004);
     let path = dir.path().join("moved.png");
-    plot_png(&path, &[("gtsr", &moved)]).unwrap();
-    let m = image::open(&path).unwrap().to_rgb8();
+    let m = plotted(&path, &[("gtsr", &moved)]);
     let differ = |x0, x1| differing_pixels(&a, &m, x0, x1);
     assert!(
         differ(panel.0, panel.1) > 100,

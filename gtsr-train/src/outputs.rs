@@ -102,7 +102,8 @@ impl Evaluation {
     ) -> gtsr_eval::TimelinePoint {
         let (ns, ni) = trainer.model().counts();
         // The split only where the ground truth has a hull-blind part.
-        let blind = |m: &Option<MeshMetrics>| m.as_ref()?.hull_blind.filter(|b| b.fraction > 0.0);
+        let split = |m: &Option<MeshMetrics>| m.as_ref()?.hull_blind.filter(|b| b.fraction > 0.0);
+        let (mesh, masks) = (split(&self.mesh), split(&self.masks_alone));
         gtsr_eval::TimelinePoint {
             iteration: trainer.steps_done() as u64,
             train_seconds,
@@ -112,10 +113,10 @@ impl Evaluation {
             depth_only_chamfer: self.depth_only.as_ref().map(|m| m.chamfer),
             masks_alone_chamfer: self.masks_alone.as_ref().map(|m| m.chamfer),
             depth_error: self.depth.as_ref().map(|d| d.depth_median_abs),
-            blind_completeness: blind(&self.mesh).map(|b| b.blind),
-            rest_completeness: blind(&self.mesh).map(|b| b.rest),
-            masks_alone_blind_completeness: blind(&self.masks_alone).map(|b| b.blind),
-            masks_alone_rest_completeness: blind(&self.masks_alone).map(|b| b.rest),
+            blind_completeness: mesh.map(|b| b.blind),
+            rest_completeness: mesh.map(|b| b.rest),
+            masks_alone_blind_completeness: masks.map(|b| b.blind),
+            masks_alone_rest_completeness: masks.map(|b| b.rest),
             gaussians: (ns + ni) as u64,
             label: label.into(),
         }
