@@ -23,6 +23,7 @@
 use glam::Vec3;
 use gtsr_data::Camera;
 use gtsr_data::ply::TriMesh;
+use rayon::prelude::*;
 
 use crate::error::{EvalError, Result};
 
@@ -353,6 +354,172 @@ pub fn refine(
     refine_anchored(mesh, targets, depth, settings, None, None)
 }
 
+/// Rows per parallel task of [`VertexSystem::apply`] and [`dot`]: fixed, so that the sums,
+/// and so the solution, do not depend on how the work is split.
+const ROWS_PER_TASK: usize = 4096;
+
+/// A symmetric matrix over a mesh's vertices assembled from one 3x3 block per face, stored by
+/// rows (compressed sparse rows) so that a product runs row by row in parallel.
+struct VertexSystem {
+    /// Where each row's entries start in `cols` and `vals` (one more than the rows).
+    start: Vec<usize>,
+    /// The column of each entry, increasing within a row.
+    cols: Vec<u32>,
+    /// The value of each entry.
+    vals: Vec<f64>,
+}
+
+impl VertexSystem {
+    /// `diag` (one value per vertex) plus, for each face `f` with vertices `t`, `block(f)[a][b]`
+    /// added at `(t[a], t[b])`.
+    fn assemble(
+        triangles: &[[u32; 3]],
+        diag: Vec<f64>,
+        block: impl Fn(usize) -> [[f64; 3]; 3] + Sync,
+    ) -> Self {
+        let nv = diag.len();
+        // Each row's slots: its diagonal and three per face around the vertex.
+        let mut start = vec![0usize; nv + 1];
+        for t in triangles {
+            for &i in t {
+                start[i as usize + 1] += 3;
+            }
+        }
+        for i in 0..nv {
+            start[i + 1] += start[i] + 1;
+        }
+        let blocks: Vec<[[f64; 3]; 3]> = (0..triangles.len()).into_par_iter().map(&block).collect();
+        let mut cols = vec![0u32; start[nv]];
+        let mut vals = vec![0.0f64; start[nv]];
+        let mut fill: Vec<usize> = start[..nv].to_vec();
+        for (i, d) in diag.iter().enumerate() {
+            cols[fill[i]] = i as u32;
+            vals[fill[i]] = *d;
+            fill[i] += 1;
+        }
+        for (t, b) in triangles.iter().zip(&blocks) {
+            for a in 0..3 {
+                let row = t[a] as usize;
+                for c in 0..3 {
+                    cols[fill[row]] = t[c];
+                    vals[fill[row]] = b[a][c];
+                    fill[row] += 1;
+                }
+            }
+        }
+        // Sort each row by column and merge the repeated columns.
+        let rows: Vec<Vec<(u32, f64)>> = (0..nv)
+            .into_par_iter()
+            .map(|i| {
+                let mut row: Vec<(u32, f64)> = (start[i]..start[i + 1])
+                    .map(|k| (cols[k], vals[k]))
+                    .collect();
+                row.sort_by_key(|e| e.0);
+                let mut merged: Vec<(u32, f64)> = Vec::with_capacity(row.len());
+                for (c, v) in row {
+                    match merged.last_mut() {
+                        Some(last) if last.0 == c => last.1 += v,
+                        _ => merged.push((c, v)),
+                    }
+                }
+                merged
+            })
+            .collect();
+        let mut out = VertexSystem {
+            start: Vec::with_capacity(nv + 1),
+            cols: Vec::with_capacity(rows.iter().map(Vec::len).sum()),
+            vals: Vec::new(),
+        };
+        out.vals.reserve(out.cols.capacity());
+        out.start.push(0);
+        for row in rows {
+            for (c, v) in row {
+                out.cols.push(c);
+                out.vals.push(v);
+            }
+            out.start.push(out.cols.len());
+        }
+        out
+    }
+
+    /// The diagonal entries.
+    fn diagonal(&self) -> Vec<f64> {
+        (0..self.start.len() - 1)
+            .map(|i| {
+                let row = self.start[i]..self.start[i + 1];
+                (self.cols[row.clone()].iter().zip(&self.vals[row]))
+                    .find(|(c, _)| **c as usize == i)
+                    .map_or(0.0, |(_, v)| *v)
+            })
+            .collect()
+    }
+
+    /// `out = A x` on the rows `free` flags, 0 on the others; returns `x . out`, summed as
+    /// [`dot`] sums.
+    fn apply(&self, x: &[f64], out: &mut [f64], free: &[bool]) -> f64 {
+        let parts: Vec<f64> = out
+            .par_chunks_mut(ROWS_PER_TASK)
+            .enumerate()
+            .map(|(task, chunk)| {
+                let mut sum = 0.0;
+                for (k, o) in chunk.iter_mut().enumerate() {
+                    let i = task * ROWS_PER_TASK + k;
+                    *o = if free[i] {
+                        let row = self.start[i]..self.start[i + 1];
+                        (self.cols[row.clone()].iter().zip(&self.vals[row]))
+                            .map(|(c, v)| v * x[*c as usize])
+                            .sum()
+                    } else {
+                        0.0
+                    };
+                    sum += x[i] * *o;
+                }
+                sum
+            })
+            .collect();
+        parts.iter().sum()
+    }
+}
+
+/// One conjugate-gradient step over the vectors, in parallel chunks: `x += alpha p`,
+/// `r -= alpha ap`, `z = r * inv_diag`; returns `r . z`, summed as [`dot`] sums.
+fn cg_step(
+    alpha: f64,
+    (x, r, z): (&mut [f64], &mut [f64], &mut [f64]),
+    (p, ap, inv_diag): (&[f64], &[f64], &[f64]),
+) -> f64 {
+    let n = ROWS_PER_TASK;
+    let parts: Vec<f64> = (x
+        .par_chunks_mut(n)
+        .zip(r.par_chunks_mut(n))
+        .zip(z.par_chunks_mut(n)))
+    .zip(
+        p.par_chunks(n)
+            .zip(ap.par_chunks(n))
+            .zip(inv_diag.par_chunks(n)),
+    )
+    .map(|(((x, r), z), ((p, ap), d))| {
+        let mut sum = 0.0;
+        for i in 0..x.len() {
+            x[i] += alpha * p[i];
+            r[i] -= alpha * ap[i];
+            z[i] = r[i] * d[i];
+            sum += r[i] * z[i];
+        }
+        sum
+    })
+    .collect();
+    parts.iter().sum()
+}
+
+/// `a . b`, summed in fixed chunks ([`ROWS_PER_TASK`]) in parallel, then in order.
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let parts: Vec<f64> = (a.par_chunks(ROWS_PER_TASK).zip(b.par_chunks(ROWS_PER_TASK)))
+        .map(|(a, b)| a.iter().zip(b).map(|(x, y)| x * y).sum())
+        .collect();
+    parts.iter().sum()
+}
+
 /// [`refine`] with the anchor's weight scaled per vertex by `anchor_scale` (e.g. large where
 /// the mesh should stay, 1 where the normals may move it) and, with `face_max_tilt`, the
 /// largest trusted tilt set per face (sines in (0, 1), instead of [`RefineSettings::max_tilt`]).
@@ -478,55 +645,23 @@ pub fn refine_anchored(
             }
         }
     }
-    let apply = |x: &[f64], out: &mut [f64], free: &[bool]| {
-        for (o, (xi, m)) in out.iter_mut().zip(x.iter().zip(&amass)) {
-            *o = mu as f64 * *m as f64 * xi;
-        }
-        for (f, t) in mesh.triangles.iter().enumerate() {
+    // The system matrix: the anchor's mass on the diagonal, each face's slope term and depth
+    // term over its three vertices.
+    let system = VertexSystem::assemble(
+        &mesh.triangles,
+        amass.iter().map(|m| mu as f64 * *m as f64).collect(),
+        |f| {
             let c = (wf[f] * geo.areas[f]) as f64;
-            if c == 0.0 {
-                continue;
-            }
-            let g = &geo.grads[f];
-            let gx = g[0].as_dvec3() * x[t[0] as usize]
-                + g[1].as_dvec3() * x[t[1] as usize]
-                + g[2].as_dvec3() * x[t[2] as usize];
-            for k in 0..3 {
-                out[t[k] as usize] += c * g[k].as_dvec3().dot(gx);
-            }
-        }
-        if let Some(coef) = &depth_coef {
-            for (t, &k_f) in mesh.triangles.iter().zip(coef) {
-                if k_f > 0.0 {
-                    let mean = (x[t[0] as usize] + x[t[1] as usize] + x[t[2] as usize]) / 3.0;
-                    for k in t {
-                        out[*k as usize] += k_f * mean / 3.0;
-                    }
-                }
-            }
-        }
-        for (o, f) in out.iter_mut().zip(free) {
-            if !f {
-                *o = 0.0;
-            }
-        }
-    };
+            let g = geo.grads[f].map(|g| g.as_dvec3());
+            let k = depth_coef
+                .as_ref()
+                .map_or(0.0, |coef| coef[f].max(0.0) / 9.0);
+            std::array::from_fn(|a| std::array::from_fn(|b| c * g[a].dot(g[b]) + k))
+        },
+    );
     // Jacobi preconditioner: the diagonal of the system.
-    let mut diag: Vec<f64> = amass.iter().map(|m| mu as f64 * *m as f64).collect();
-    for (f, t) in mesh.triangles.iter().enumerate() {
-        let c = (wf[f] * geo.areas[f]) as f64;
-        for k in 0..3 {
-            diag[t[k] as usize] += c * geo.grads[f][k].as_dvec3().length_squared();
-        }
-    }
-    if let Some(coef) = &depth_coef {
-        for (t, &k_f) in mesh.triangles.iter().zip(coef) {
-            for k in t {
-                diag[*k as usize] += k_f / 9.0;
-            }
-        }
-    }
-    let inv_diag: Vec<f64> = diag
+    let inv_diag: Vec<f64> = system
+        .diagonal()
         .iter()
         .map(|d| {
             if *d > 0.0 && d.is_finite() {
@@ -536,6 +671,7 @@ pub fn refine_anchored(
             }
         })
         .collect();
+    let apply = |x: &[f64], out: &mut [f64], free: &[bool]| system.apply(x, out, free);
     let all = vec![true; nv];
     let mut free = vec![true; nv];
     // Start from the mesh as it is (d = 0, y = -c).
@@ -548,39 +684,33 @@ pub fn refine_anchored(
             }
         }
         let mut ax = vec![0.0f64; nv];
-        apply(&x, &mut ax, &free);
+        let _ = apply(&x, &mut ax, &free);
         let mut r: Vec<f64> = (0..nv)
             .map(|i| if free[i] { b[i] - ax[i] } else { 0.0 })
             .collect();
         let mut z: Vec<f64> = r.iter().zip(&inv_diag).map(|(r, d)| r * d).collect();
         let mut p = z.clone();
-        let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+        let mut rz = dot(&r, &z);
         let rz0 = rz.max(1e-300);
         let mut ap = vec![0.0f64; nv];
         for _ in 0..settings.iterations {
             if rz <= 1e-14 * rz0 {
                 break;
             }
-            apply(&p, &mut ap, &free);
-            let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
+            let pap = apply(&p, &mut ap, &free);
             if pap <= 0.0 || !pap.is_finite() {
                 break;
             }
             let alpha = rz / pap;
-            for i in 0..nv {
-                x[i] += alpha * p[i];
-                r[i] -= alpha * ap[i];
-                z[i] = r[i] * inv_diag[i];
-            }
-            let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+            let rz_new = cg_step(alpha, (&mut x, &mut r, &mut z), (&p, &ap, &inv_diag));
             let beta = rz_new / rz;
             rz = rz_new;
-            for i in 0..nv {
-                p[i] = z[i] + beta * p[i];
-            }
+            (p.par_chunks_mut(ROWS_PER_TASK)
+                .zip(z.par_chunks(ROWS_PER_TASK)))
+            .for_each(|(p, z)| p.iter_mut().zip(z).for_each(|(p, z)| *p = z + beta * *p));
         }
         // Hold the vertices pushed outward; release the held ones the energy pulls inward.
-        apply(&x, &mut ax, &all);
+        let _ = apply(&x, &mut ax, &all);
         let mut changed = false;
         for i in 0..nv {
             if free[i] && x[i] > 0.0 {
@@ -765,6 +895,61 @@ mod tests {
         let (_, d) = refine_with_normals(&mesh, &targets, &settings).unwrap();
         let centre = d[(n / 2) * (n + 1) + n / 2];
         assert!((centre + 0.1).abs() < 0.01, "centre moved {centre}");
+    }
+
+    /// The assembled system's product is the sum of its faces' blocks applied one face at a
+    /// time, with the diagonal, on the free rows and zero on the others, and the dot product
+    /// it returns is `x` against that; its diagonal is that of the blocks; the rows span
+    /// several of the parallel tasks' chunks.
+    #[test]
+    fn the_assembled_system_applies_as_its_faces_do() {
+        let mesh = grid(100);
+        let nv = mesh.positions.len();
+        assert!(nv > 2 * ROWS_PER_TASK);
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let diag: Vec<f64> = (0..nv).map(|_| 1.0 + next()).collect();
+        let blocks: Vec<[[f64; 3]; 3]> = (0..mesh.triangles.len())
+            .map(|_| {
+                let (a, b, c, d, e, f) = (next(), next(), next(), next(), next(), next());
+                [[a, b, c], [b, d, e], [c, e, f]]
+            })
+            .collect();
+        let system = VertexSystem::assemble(&mesh.triangles, diag.clone(), |f| blocks[f]);
+        let x: Vec<f64> = (0..nv).map(|_| next()).collect();
+        let free: Vec<bool> = (0..nv).map(|i| i % 7 != 3).collect();
+        let mut want: Vec<f64> = diag.iter().zip(&x).map(|(d, x)| d * x).collect();
+        let mut want_diag = diag.clone();
+        for (t, b) in mesh.triangles.iter().zip(&blocks) {
+            for a in 0..3 {
+                for c in 0..3 {
+                    want[t[a] as usize] += b[a][c] * x[t[c] as usize];
+                }
+                want_diag[t[a] as usize] += b[a][a];
+            }
+        }
+        let mut got = vec![f64::NAN; nv];
+        let x_dot = system.apply(&x, &mut got, &free);
+        let want_dot: f64 = (0..nv).filter(|i| free[*i]).map(|i| x[i] * want[i]).sum();
+        assert!((x_dot - want_dot).abs() <= 1e-9 * want_dot.abs().max(1.0));
+        for i in 0..nv {
+            let w = if free[i] { want[i] } else { 0.0 };
+            assert!(
+                (got[i] - w).abs() <= 1e-12 * (1.0 + w.abs()),
+                "row {i}: {} against {w}",
+                got[i]
+            );
+        }
+        for (g, w) in system.diagonal().iter().zip(&want_diag) {
+            assert!((g - w).abs() <= 1e-12 * (1.0 + w.abs()));
+        }
+        let serial: f64 = x.iter().zip(&diag).map(|(a, b)| a * b).sum();
+        assert!((dot(&x, &diag) - serial).abs() <= 1e-9 * serial.abs().max(1.0));
     }
 
     #[test]

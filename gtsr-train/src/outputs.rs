@@ -371,7 +371,11 @@ fn masks_with_rendered_radiance(
     }
     let t0 = Instant::now();
     let model = trainer.model().detached();
-    let opts = trainer.render_options(trainer.steps_done(), false);
+    // C_SH alone: neither the geometry maps nor C_PBR, which it does not depend on.
+    let opts = gtsr_model::RenderOptions {
+        geometry: false,
+        ..trainer.render_options(trainer.steps_done(), false)
+    };
     let rendered = (views.iter().zip(&scene.train))
         .map(|(v, data)| {
             let r = model.render(&v.camera, &v.rays, opts)?;
