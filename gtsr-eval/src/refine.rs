@@ -407,35 +407,25 @@ impl VertexSystem {
                 }
             }
         }
-        // Sort each row by column and merge the repeated columns.
-        let rows: Vec<Vec<(u32, f64)>> = (0..nv)
-            .into_par_iter()
-            .map(|i| {
-                let mut row: Vec<(u32, f64)> = (start[i]..start[i + 1])
-                    .map(|k| (cols[k], vals[k]))
-                    .collect();
-                row.sort_by_key(|e| e.0);
-                let mut merged: Vec<(u32, f64)> = Vec::with_capacity(row.len());
-                for (c, v) in row {
-                    match merged.last_mut() {
-                        Some(last) if last.0 == c => last.1 += v,
-                        _ => merged.push((c, v)),
-                    }
-                }
-                merged
-            })
-            .collect();
+        // Each row sorted by column, the repeated columns merged.
         let mut out = VertexSystem {
             start: Vec::with_capacity(nv + 1),
-            cols: Vec::with_capacity(rows.iter().map(Vec::len).sum()),
-            vals: Vec::new(),
+            cols: Vec::with_capacity(cols.len()),
+            vals: Vec::with_capacity(cols.len()),
         };
-        out.vals.reserve(out.cols.capacity());
         out.start.push(0);
-        for row in rows {
-            for (c, v) in row {
-                out.cols.push(c);
-                out.vals.push(v);
+        let mut row: Vec<(u32, f64)> = Vec::new();
+        for i in 0..nv {
+            row.clear();
+            row.extend((start[i]..start[i + 1]).map(|k| (cols[k], vals[k])));
+            row.sort_by_key(|e| e.0);
+            for &(c, v) in &row {
+                if out.cols.len() > out.start[i] && out.cols.last() == Some(&c) {
+                    *out.vals.last_mut().expect("an entry") += v;
+                } else {
+                    out.cols.push(c);
+                    out.vals.push(v);
+                }
             }
             out.start.push(out.cols.len());
         }
@@ -671,7 +661,6 @@ pub fn refine_anchored(
             }
         })
         .collect();
-    let apply = |x: &[f64], out: &mut [f64], free: &[bool]| system.apply(x, out, free);
     let all = vec![true; nv];
     let mut free = vec![true; nv];
     // Start from the mesh as it is (d = 0, y = -c).
@@ -684,7 +673,7 @@ pub fn refine_anchored(
             }
         }
         let mut ax = vec![0.0f64; nv];
-        let _ = apply(&x, &mut ax, &free);
+        system.apply(&x, &mut ax, &free);
         let mut r: Vec<f64> = (0..nv)
             .map(|i| if free[i] { b[i] - ax[i] } else { 0.0 })
             .collect();
@@ -697,7 +686,7 @@ pub fn refine_anchored(
             if rz <= 1e-14 * rz0 {
                 break;
             }
-            let pap = apply(&p, &mut ap, &free);
+            let pap = system.apply(&p, &mut ap, &free);
             if pap <= 0.0 || !pap.is_finite() {
                 break;
             }
@@ -710,7 +699,7 @@ pub fn refine_anchored(
             .for_each(|(p, z)| p.iter_mut().zip(z).for_each(|(p, z)| *p = z + beta * *p));
         }
         // Hold the vertices pushed outward; release the held ones the energy pulls inward.
-        let _ = apply(&x, &mut ax, &all);
+        system.apply(&x, &mut ax, &all);
         let mut changed = false;
         for i in 0..nv {
             if free[i] && x[i] > 0.0 {
