@@ -191,6 +191,61 @@ fn the_dent_is_outside_the_shape_but_inside_every_silhouette() {
     }
 }
 
+/// The slotted cube's slot is empty, and no silhouette sees it: every ray through it from
+/// outside the bounding sphere hits the shape. Its mesh puts the floor and the walls where
+/// the analytic slot has them.
+#[test]
+fn the_slot_is_outside_the_shape_but_inside_every_silhouette() {
+    use gtsr_data::synthetic::shapes::{
+        CUBE_HALF, SLOT_DEPTH, SLOT_WIDTH, cube_rotation, slot_box,
+    };
+    let shape = ShapeKind::SlottedCube;
+    let turn = cube_rotation();
+    let (lo, hi) = slot_box();
+    assert!(((hi.y - lo.y) - SLOT_WIDTH).abs() < 1e-6 && (hi.z - lo.z - SLOT_DEPTH).abs() < 1e-6);
+    let mut rng = gtsr_data::synthetic::rng::Rng::new(9, 0, 0, 0);
+    let mut uniform = || Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+    for _ in 0..400 {
+        let p = turn * (lo + (hi - lo) * (uniform() * 0.98 + 0.01));
+        assert!(!shape.contains(p), "{p}: the slot should be empty");
+        assert!(
+            ShapeKind::Cube.contains(p),
+            "{p}: the slot lies inside the cube"
+        );
+        for _ in 0..20 {
+            let d = (uniform() * 2.0 - 1.0).normalize();
+            assert!(
+                shape.ray_hits(p - 4.0 * d, d),
+                "a ray along {d} through {p} misses"
+            );
+        }
+    }
+    // Just under the face beside the slot and just under its floor: solid.
+    let mid = (lo + hi) * 0.5;
+    for q in [
+        Vec3::new(mid.x, lo.y - 0.01, CUBE_HALF - 0.01),
+        Vec3::new(mid.x, mid.y, lo.z - 0.01),
+    ] {
+        assert!(shape.contains(turn * q), "{q}");
+    }
+    // The mesh: every vertex lies on the cube's surface or on the slot's floor or walls.
+    let mesh = shape.mesh();
+    let on_floor = mesh
+        .positions
+        .iter()
+        .map(|&p| turn.inverse() * p)
+        .filter(|q| (q.z - lo.z).abs() < 1e-5)
+        .count();
+    assert_eq!(on_floor, 41 * 6, "the floor's grid points");
+    for &p in &mesh.positions {
+        let q = turn.inverse() * p;
+        let on_cube = (q.abs().max_element() - CUBE_HALF).abs() < 1e-5;
+        let in_outline =
+            q.x >= lo.x - 1e-5 && q.x <= hi.x + 1e-5 && q.y >= lo.y - 1e-5 && q.y <= hi.y + 1e-5;
+        assert!(on_cube || (in_outline && (q.z - lo.z).abs() < 1e-5), "{q}");
+    }
+}
+
 /// The same seed gives the same bytes whatever the thread count; another seed differs.
 #[test]
 fn deterministic_for_a_seed() {

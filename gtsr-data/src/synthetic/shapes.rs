@@ -17,6 +17,9 @@
 //!   the dent.
 //! * [`ShapeKind::Cube`]: a cube of half-side [`CUBE_HALF`] turned obliquely
 //!   ([`cube_rotation`]): flat faces and sharp edges; each face a grid of squares.
+//! * [`ShapeKind::SlottedCube`]: that cube with a narrow closed slot ([`slot_box`]) sunk into
+//!   one face: a trench [`SLOT_WIDTH`] across and [`SLOT_DEPTH`] deep that no silhouette
+//!   sees, only the views that look down into it.
 
 use std::collections::HashMap;
 use std::f32::consts::TAU;
@@ -41,6 +44,8 @@ pub enum ShapeKind {
     DentedSphere,
     /// A cube turned obliquely: flat faces and sharp edges.
     Cube,
+    /// The oblique cube with a narrow slot sunk into one face, hidden from every silhouette.
+    SlottedCube,
 }
 
 /// Torus major radius.
@@ -63,6 +68,28 @@ const KNOT_SCALE: f32 = (1.0 - KNOT_TUBE) / 3.0;
 pub const CUBE_HALF: f32 = 0.577_350_26;
 /// Squares along each edge of a cube face in the mesh.
 const CUBE_GRID: u32 = 48;
+/// Squares along each edge of a face of the slotted cube's mesh; the slot's walls lie on
+/// its grid lines.
+const SLOT_GRID: u32 = 64;
+/// The slot's extent in grid squares of the slotted face, along its length and across.
+const SLOT_CELLS: ([u32; 2], [u32; 2]) = ([12, 52], [30, 35]);
+/// The slot's depth below the face.
+pub const SLOT_DEPTH: f32 = 0.25;
+/// The slot's width across: five grid squares (two pixels of a 64 px view of the scene at
+/// distance 4, four at 128 px).
+pub const SLOT_WIDTH: f32 = 5.0 * 2.0 * CUBE_HALF / SLOT_GRID as f32;
+
+/// The slot of [`ShapeKind::SlottedCube`] as a box in the cube's own frame (before
+/// [`cube_rotation`]): its opening lies in the face `z = CUBE_HALF`. Returns its lower and
+/// upper corners.
+pub fn slot_box() -> (Vec3, Vec3) {
+    let at = |c: u32| (2.0 * c as f32 / SLOT_GRID as f32 - 1.0) * CUBE_HALF;
+    let ([u0, u1], [v0, v1]) = SLOT_CELLS;
+    (
+        Vec3::new(at(u0), at(v0), CUBE_HALF - SLOT_DEPTH),
+        Vec3::new(at(u1), at(v1), CUBE_HALF),
+    )
+}
 
 /// The cube's orientation: its own axes turned so that no face looks straight along the
 /// cameras' up axis or a horizontal axis.
@@ -72,13 +99,14 @@ pub fn cube_rotation() -> glam::Quat {
 
 impl ShapeKind {
     /// Every shape.
-    pub const ALL: [ShapeKind; 6] = [
+    pub const ALL: [ShapeKind; 7] = [
         ShapeKind::Sphere,
         ShapeKind::Torus,
         ShapeKind::Bear,
         ShapeKind::TorusKnot,
         ShapeKind::DentedSphere,
         ShapeKind::Cube,
+        ShapeKind::SlottedCube,
     ];
 
     /// The name used on the command line and in `meta.json`.
@@ -90,6 +118,7 @@ impl ShapeKind {
             ShapeKind::TorusKnot => "torus_knot",
             ShapeKind::DentedSphere => "dented_sphere",
             ShapeKind::Cube => "cube",
+            ShapeKind::SlottedCube => "slotted_cube",
         }
     }
 
@@ -101,7 +130,8 @@ impl ShapeKind {
             ShapeKind::Bear => bear_mesh(112),
             ShapeKind::TorusKnot => tube_mesh(knot_curve, KNOT_TUBE, 1024, 40),
             ShapeKind::DentedSphere => dented_sphere_mesh(6),
-            ShapeKind::Cube => cube_mesh(CUBE_GRID),
+            ShapeKind::Cube => cube_mesh(CUBE_GRID, false),
+            ShapeKind::SlottedCube => cube_mesh(SLOT_GRID, true),
         }
     }
 
@@ -124,6 +154,11 @@ impl ShapeKind {
             ShapeKind::Cube => {
                 let q = cube_rotation().inverse() * p;
                 q.abs().max_element() <= CUBE_HALF
+            }
+            ShapeKind::SlottedCube => {
+                let q = cube_rotation().inverse() * p;
+                let (lo, hi) = slot_box();
+                q.abs().max_element() <= CUBE_HALF && !(q.cmpgt(lo).all() && q.cmplt(hi).all())
             }
         }
     }
@@ -158,7 +193,9 @@ impl ShapeKind {
                         }
                 }
             },
-            ShapeKind::Cube => {
+            // A ray into the slot can leave it only through the floor or the walls: the slot
+            // is closed on every side but its opening, which lies in one plane.
+            ShapeKind::Cube | ShapeKind::SlottedCube => {
                 let r = cube_rotation().inverse();
                 box_chord(r * o, r * d, CUBE_HALF).is_some_and(|(_, t1)| t1 > 0.0)
             }
@@ -180,7 +217,8 @@ impl std::str::FromStr for ShapeKind {
             .find(|k| k.name() == s || (s == "knot" && *k == ShapeKind::TorusKnot))
             .ok_or_else(|| {
                 format!(
-                    "unknown shape '{s}' (sphere, torus, bear, torus_knot, dented_sphere, cube)"
+                    "unknown shape '{s}' (sphere, torus, bear, torus_knot, dented_sphere, cube, \
+                     slotted_cube)"
                 )
             })
     }
@@ -213,31 +251,42 @@ fn box_chord(o: Vec3, d: Vec3, h: f32) -> Option<(f32, f32)> {
 }
 
 /// The cube of half-side [`CUBE_HALF`], `n` squares (two triangles each) along each edge of
-/// each face, vertices shared along the edges, turned by [`cube_rotation`].
-fn cube_mesh(n: u32) -> TriMesh {
+/// each face, vertices shared along the edges, turned by [`cube_rotation`]. With `slot`, the
+/// squares of the face `z = CUBE_HALF` inside [`SLOT_CELLS`] sink to the slot's floor, and
+/// walls join the floor to the face along the slot's outline (`n` must be [`SLOT_GRID`]).
+fn cube_mesh(n: u32, slot: bool) -> TriMesh {
     let turn = cube_rotation();
-    let mut index: HashMap<[u32; 3], u32> = HashMap::new();
+    // A vertex is a grid point; the slot's floor has its own (the fourth key is 1).
+    let mut index: HashMap<[u32; 4], u32> = HashMap::new();
     let mut positions = Vec::new();
-    let mut vertex = |g: [u32; 3]| -> u32 {
-        *index.entry(g).or_insert_with(|| {
-            let c = |k: usize| (2.0 * g[k] as f32 / n as f32 - 1.0) * CUBE_HALF;
-            positions.push(turn * Vec3::new(c(0), c(1), c(2)));
-            positions.len() as u32 - 1
-        })
+    let mut vertex = |g: [u32; 3], floor: bool| -> u32 {
+        *index
+            .entry([g[0], g[1], g[2], floor as u32])
+            .or_insert_with(|| {
+                let c = |k: usize| (2.0 * g[k] as f32 / n as f32 - 1.0) * CUBE_HALF;
+                let lower = if floor { SLOT_DEPTH } else { 0.0 };
+                positions.push(turn * Vec3::new(c(0), c(1), c(2) - lower));
+                positions.len() as u32 - 1
+            })
     };
+    let ([su0, su1], [sv0, sv1]) = SLOT_CELLS;
+    let in_slot = |i: u32, j: u32| slot && (su0..su1).contains(&i) && (sv0..sv1).contains(&j);
     let mut triangles = Vec::with_capacity(12 * (n * n) as usize);
     for axis in 0..3 {
         // (u, v, axis) is right-handed, so u x v points along +axis.
         let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
         for side in [0, n] {
+            // The slotted face is z = +CUBE_HALF, where (u, v) is (x, y).
+            let slotted = axis == 2 && side == n;
             for i in 0..n {
                 for j in 0..n {
+                    let floor = slotted && in_slot(i, j);
                     let mut corner = |di: u32, dj: u32| {
                         let mut g = [0; 3];
                         g[axis] = side;
                         g[u] = i + di;
                         g[v] = j + dj;
-                        vertex(g)
+                        vertex(g, floor)
                     };
                     let (a, b, c, d) = (corner(0, 0), corner(1, 0), corner(1, 1), corner(0, 1));
                     if side == n {
@@ -247,6 +296,33 @@ fn cube_mesh(n: u32) -> TriMesh {
                     }
                 }
             }
+        }
+    }
+    if slot {
+        // The walls: along each edge of the outline, a quad from the face down to the floor,
+        // wound to face into the slot.
+        let mut wall = |p: [u32; 2], q: [u32; 2], inward: Vec3| {
+            let (tp, tq) = (
+                vertex([p[0], p[1], n], false),
+                vertex([q[0], q[1], n], false),
+            );
+            let (fp, fq) = (vertex([p[0], p[1], n], true), vertex([q[0], q[1], n], true));
+            let along = Vec3::new((q[0] - p[0]) as f32, (q[1] - p[1]) as f32, 0.0);
+            // (top p, floor p, floor q) faces along x up: keep it when that points into
+            // the slot, else wind the other way.
+            if along.cross(Vec3::Z).dot(inward) > 0.0 {
+                triangles.extend([[tp, fp, fq], [tp, fq, tq]]);
+            } else {
+                triangles.extend([[tp, fq, fp], [tp, tq, fq]]);
+            }
+        };
+        for i in su0..su1 {
+            wall([i, sv0], [i + 1, sv0], Vec3::Y);
+            wall([i, sv1], [i + 1, sv1], Vec3::NEG_Y);
+        }
+        for j in sv0..sv1 {
+            wall([su0, j], [su0, j + 1], Vec3::X);
+            wall([su1, j], [su1, j + 1], Vec3::NEG_X);
         }
     }
     TriMesh {
