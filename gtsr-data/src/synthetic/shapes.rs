@@ -75,9 +75,10 @@ const SLOT_GRID: u32 = 64;
 const SLOT_CELLS: ([u32; 2], [u32; 2]) = ([12, 52], [30, 35]);
 /// The slot's depth below the face.
 pub const SLOT_DEPTH: f32 = 0.25;
-/// The slot's width across: five grid squares (two pixels of a 64 px view of the scene at
-/// distance 4, four at 128 px).
-pub const SLOT_WIDTH: f32 = 5.0 * 2.0 * CUBE_HALF / SLOT_GRID as f32;
+/// The slot's width across (two pixels of a 64 px view of the scene at distance 4, four at
+/// 128 px).
+pub const SLOT_WIDTH: f32 =
+    (SLOT_CELLS.1[1] - SLOT_CELLS.1[0]) as f32 * 2.0 * CUBE_HALF / SLOT_GRID as f32;
 
 /// The slot of [`ShapeKind::SlottedCube`] as a box in the cube's own frame (before
 /// [`cube_rotation`]): its opening lies in the face `z = CUBE_HALF`. Returns its lower and
@@ -270,17 +271,16 @@ fn cube_mesh(n: u32, slot: bool) -> TriMesh {
             })
     };
     let ([su0, su1], [sv0, sv1]) = SLOT_CELLS;
-    let in_slot = |i: u32, j: u32| slot && (su0..su1).contains(&i) && (sv0..sv1).contains(&j);
     let mut triangles = Vec::with_capacity(12 * (n * n) as usize);
     for axis in 0..3 {
         // (u, v, axis) is right-handed, so u x v points along +axis.
         let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
         for side in [0, n] {
             // The slotted face is z = +CUBE_HALF, where (u, v) is (x, y).
-            let slotted = axis == 2 && side == n;
+            let slotted = slot && axis == 2 && side == n;
             for i in 0..n {
                 for j in 0..n {
-                    let floor = slotted && in_slot(i, j);
+                    let floor = slotted && (su0..su1).contains(&i) && (sv0..sv1).contains(&j);
                     let mut corner = |di: u32, dj: u32| {
                         let mut g = [0; 3];
                         g[axis] = side;
@@ -299,30 +299,24 @@ fn cube_mesh(n: u32, slot: bool) -> TriMesh {
         }
     }
     if slot {
-        // The walls: along each edge of the outline, a quad from the face down to the floor,
-        // wound to face into the slot.
-        let mut wall = |p: [u32; 2], q: [u32; 2], inward: Vec3| {
+        // The walls: a quad from the face down to the floor along each edge `p -> q` of the
+        // outline, walked counter-clockwise seen from above, so that the slot lies to the
+        // left; (top p, floor q, floor p) then faces left, into the slot.
+        let mut wall = |p: [u32; 2], q: [u32; 2]| {
             let (tp, tq) = (
                 vertex([p[0], p[1], n], false),
                 vertex([q[0], q[1], n], false),
             );
             let (fp, fq) = (vertex([p[0], p[1], n], true), vertex([q[0], q[1], n], true));
-            let along = Vec3::new((q[0] - p[0]) as f32, (q[1] - p[1]) as f32, 0.0);
-            // (top p, floor p, floor q) faces along x up: keep it when that points into
-            // the slot, else wind the other way.
-            if along.cross(Vec3::Z).dot(inward) > 0.0 {
-                triangles.extend([[tp, fp, fq], [tp, fq, tq]]);
-            } else {
-                triangles.extend([[tp, fq, fp], [tp, tq, fq]]);
-            }
+            triangles.extend([[tp, fq, fp], [tp, tq, fq]]);
         };
         for i in su0..su1 {
-            wall([i, sv0], [i + 1, sv0], Vec3::Y);
-            wall([i, sv1], [i + 1, sv1], Vec3::NEG_Y);
+            wall([i, sv0], [i + 1, sv0]);
+            wall([i + 1, sv1], [i, sv1]);
         }
         for j in sv0..sv1 {
-            wall([su0, j], [su0, j + 1], Vec3::X);
-            wall([su1, j], [su1, j + 1], Vec3::NEG_X);
+            wall([su1, j], [su1, j + 1]);
+            wall([su0, j + 1], [su0, j]);
         }
     }
     TriMesh {
