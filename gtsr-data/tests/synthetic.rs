@@ -246,6 +246,77 @@ fn the_slot_is_outside_the_shape_but_inside_every_silhouette() {
     }
 }
 
+/// The hidden part of each shape with one is exactly what no silhouette sees: the slot's floor
+/// and walls (their area to float precision), the dent's cap (to its mesh's facets);
+/// the shapes without one have none.
+#[test]
+fn the_hidden_part_is_the_slot_and_the_dent() {
+    use gtsr_data::synthetic::shapes::{
+        CUBE_HALF, DENT_CENTRE, DENT_RADIUS, SLOT_DEPTH, SLOT_WIDTH, slot_box,
+    };
+    let area = |m: &gtsr_data::ply::TriMesh| -> f64 {
+        (m.triangles.iter())
+            .map(|t| {
+                let [a, b, c] = t.map(|i| m.positions[i as usize]);
+                0.5 * f64::from((b - a).cross(c - a).length())
+            })
+            .sum()
+    };
+    for shape in ShapeKind::ALL {
+        let part = shape.hidden_part();
+        let expected = match shape {
+            ShapeKind::SlottedCube => {
+                let (lo, hi) = slot_box();
+                let length = hi.x - lo.x;
+                assert!(length > 0.5 && length < 2.0 * CUBE_HALF);
+                f64::from(length * SLOT_WIDTH + 2.0 * (length + SLOT_WIDTH) * SLOT_DEPTH)
+            }
+            ShapeKind::DentedSphere => {
+                // The cut ball's cap inside the unit sphere: height R - (C - a), where the
+                // two spheres meet at a = (C^2 + 1 - R^2) / 2C along the axis.
+                let (c, r) = (f64::from(DENT_CENTRE), f64::from(DENT_RADIUS));
+                let a = (c * c + 1.0 - r * r) / (2.0 * c);
+                std::f64::consts::TAU * r * (r - (c - a))
+            }
+            _ => {
+                assert!(part.is_none(), "{shape} has no hidden part");
+                continue;
+            }
+        };
+        let part = part.unwrap_or_else(|| panic!("{shape} has a hidden part"));
+        let got = area(&part);
+        let tolerance = if shape == ShapeKind::SlottedCube {
+            1e-4
+        } else {
+            0.03
+        };
+        assert!(
+            (got - expected).abs() <= tolerance * expected
+                && (shape != ShapeKind::SlottedCube || got <= expected * (1.0 + 1e-4)),
+            "{shape}: hidden area {got}, expected {expected}"
+        );
+        // Every face but those across the dent's rim lies outside the masks' reach: its
+        // centroid, pushed a little along the face's normal, is outside the shape but inside
+        // its convex cover (the cube, the unit sphere).
+        let cover = match shape {
+            ShapeKind::SlottedCube => ShapeKind::Cube,
+            _ => ShapeKind::Sphere,
+        };
+        for t in &part.triangles {
+            let [a, b, c] = t.map(|i| part.positions[i as usize]);
+            if [a, b, c].iter().any(|p| p.length() > 1.0 - 1e-4) {
+                continue; // across the dent's rim: its chord dips into the solid
+            }
+            let n = (b - a).cross(c - a).normalize();
+            let p = (a + b + c) / 3.0 + n * 2e-3;
+            assert!(
+                !shape.contains(p) && cover.contains(p),
+                "{shape}: face at {p}"
+            );
+        }
+    }
+}
+
 /// The same seed gives the same bytes whatever the thread count; another seed differs.
 #[test]
 fn deterministic_for_a_seed() {

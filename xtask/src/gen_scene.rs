@@ -83,9 +83,14 @@ pub fn run(args: &GenSceneArgs) -> anyhow::Result<()> {
         scene.triangles
     );
     println!(
-        "wrote {} files under {}: transforms_train.json, transforms_test.json, train/, test/, mesh.ply, meta.json",
+        "wrote {} files under {}: transforms_train.json, transforms_test.json, train/, test/, mesh.ply, meta.json{}",
         scene.files.len(),
-        scene.root.display()
+        scene.root.display(),
+        if args.shape.hidden_part().is_some() {
+            ", hidden.ply (the part no silhouette sees)"
+        } else {
+            ""
+        }
     );
     Ok(())
 }

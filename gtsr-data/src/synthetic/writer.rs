@@ -202,8 +202,9 @@ fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
 }
 
 /// Generates a synthetic scene into `out_dir` (created if needed): renders every view,
-/// writes the Blender/NeRF layout, `mesh.ply` and `meta.json`. Deterministic for a
-/// configuration (including the seed), whatever the number of threads. `progress` is
+/// writes the Blender/NeRF layout, `mesh.ply`, `meta.json` and, for a shape with a part no
+/// silhouette sees, that part as `hidden.ply` ([`ShapeKind::hidden_part`]). Deterministic
+/// for a configuration (including the seed), whatever the number of threads. `progress` is
 /// called after each image.
 pub fn generate_scene(
     out_dir: &Path,
@@ -219,6 +220,11 @@ pub fn generate_scene(
     let mesh_path = out_dir.join("mesh.ply");
     write_ply(&mesh_path, &mesh)?;
     files.push(mesh_path);
+    if let Some(hidden) = cfg.shape.hidden_part() {
+        let path = out_dir.join("hidden.ply");
+        write_ply(&path, &hidden)?;
+        files.push(path);
+    }
     let setup_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let (train, test) = scene_cameras(cfg);
