@@ -82,6 +82,11 @@ pub struct Args {
     /// per stage at the end (also written to `profile.md` in `--out`).
     #[arg(long)]
     pub profile: bool,
+    /// Start the surface set on this mesh (PLY, in the dataset's own frame) instead of
+    /// `--init`: `--init-surface` points sampled uniformly by area on its faces, e.g. a mesh
+    /// from photogrammetry or an earlier run. The rest of the schedule is unchanged.
+    #[arg(long, value_name = "PLY")]
+    pub init_mesh: Option<PathBuf>,
     /// Save a checkpoint every this many steps (0: only at the end or on Ctrl-C).
     #[arg(long, default_value_t = 500)]
     pub checkpoint_every: usize,

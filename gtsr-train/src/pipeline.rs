@@ -577,7 +577,10 @@ pub fn run(args: &Args) -> Result<Outcome> {
         );
         (t, state.train_seconds, tl)
     } else {
-        let points = initial_points(&config, &views, &scene.train)?;
+        let points = match &args.init_mesh {
+            Some(path) => points_on_mesh(path, config.init_surface, config.seed, &scene)?,
+            None => initial_points(&config, &views, &scene.train)?,
+        };
         (
             Trainer::new(config, views, extent, &points, &device)?,
             0.0,
@@ -987,4 +990,28 @@ fn differing_fields(a: &serde_json::Value, b: &serde_json::Value) -> Vec<String>
     let mut out = Vec::new();
     walk(a, b, "", &mut out);
     out
+}
+
+/// `n` points sampled uniformly by area on the mesh at `path` (the dataset's own frame),
+/// moved into the trained frame, for `--init-mesh`.
+fn points_on_mesh(path: &Path, n: usize, seed: u64, scene: &Scene) -> Result<Vec<[f32; 3]>> {
+    let mesh = gtsr_data::ply::read_ply(path)
+        .with_context(|| format!("--init-mesh: reading {}", path.display()))?;
+    let what = format!("--init-mesh {}", path.display());
+    let samples = gtsr_eval::sample_surface(&mesh, n, seed, &what)?;
+    println!(
+        "initialisation: {n} surface points on {} ({} triangles)",
+        path.display(),
+        mesh.triangles.len()
+    );
+    Ok((samples.points.iter())
+        .map(|&p| {
+            let p = if scene.normalisation_applied {
+                scene.normalisation.to_normalised(p)
+            } else {
+                p
+            };
+            p.to_array()
+        })
+        .collect())
 }

@@ -466,6 +466,50 @@ fn bad_input_is_an_error_naming_the_problem() {
     assert!(text(&o).contains("weights.flatten"), "{}", text(&o));
 }
 
+/// `--init-mesh` starts the surface set on the given mesh (the sphere's own: every splat a
+/// step later lies on the unit sphere, where the mask-carved start fills the ball), and a
+/// missing or broken mesh is an error naming the file.
+#[test]
+fn the_surface_set_starts_on_a_given_mesh() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("scene");
+    tiny_scene(&scene);
+    let radii = |out: &Path| -> Vec<f32> {
+        let (cols, values) = splat_columns(&out.join("gaussians.ply"));
+        (values.chunks_exact(cols))
+            .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
+            .collect()
+    };
+    let run = |name: &str, extra: &[&str]| -> Vec<f32> {
+        let out = tmp.path().join(name);
+        let mut args = TINY_RUN.to_vec();
+        args.extend(["--stop-at", "1", "--eval-points", "0"]);
+        args.extend(extra);
+        let o = gtsr_train(&scene, &out, &args);
+        assert!(o.status.success(), "{}", text(&o));
+        radii(&out)
+    };
+    let mesh = scene.join("mesh.ply");
+    let on_mesh = run("on-mesh", &["--init-mesh", mesh.to_str().unwrap()]);
+    assert!(!on_mesh.is_empty());
+    let off = on_mesh.iter().filter(|r| (**r - 1.0).abs() > 0.02).count();
+    assert_eq!(off, 0, "{off} of {} splats off the sphere", on_mesh.len());
+    let carved = run("carved", &[]);
+    let inside = carved.iter().filter(|r| **r < 0.9).count();
+    assert!(inside * 2 > carved.len(), "{inside} of {}", carved.len());
+
+    let broken = tmp.path().join("broken.ply");
+    std::fs::write(&broken, "ply\nformat ascii 1.0\nelement vertex 2\n").unwrap();
+    for bad in [tmp.path().join("no-such-mesh.ply"), broken] {
+        let out = tmp.path().join("bad");
+        let o = gtsr_train(&scene, &out, &["--init-mesh", bad.to_str().unwrap()]);
+        assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+        let err = String::from_utf8_lossy(&o.stderr);
+        let name = bad.file_name().unwrap().to_str().unwrap();
+        assert!(err.contains(name) && !err.contains("panicked"), "{err}");
+    }
+}
+
 #[test]
 fn help_has_one_heading_per_settings_struct_and_no_experiments() {
     let o = Command::new(env!("CARGO_BIN_EXE_gtsr-train"))
