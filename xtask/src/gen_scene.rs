@@ -86,7 +86,7 @@ pub fn run(args: &GenSceneArgs) -> anyhow::Result<()> {
         "wrote {} files under {}: transforms_train.json, transforms_test.json, train/, test/, mesh.ply, meta.json{}",
         scene.files.len(),
         scene.root.display(),
-        if args.shape.hidden_part().is_some() {
+        if scene.files.iter().any(|f| f.ends_with("hidden.ply")) {
             ", hidden.ply (the part no silhouette sees)"
         } else {
             ""

@@ -142,24 +142,26 @@ impl ShapeKind {
     /// against this part alone (its completeness) says whether a method placed what only the
     /// shading shows.
     pub fn hidden_part(&self) -> Option<TriMesh> {
-        let hidden: Box<dyn Fn([Vec3; 3]) -> bool> = match self {
+        self.hidden_part_of(&self.mesh())
+    }
+
+    /// [`ShapeKind::hidden_part`] of `mesh`, this shape's own [`ShapeKind::mesh`] already built.
+    pub(crate) fn hidden_part_of(&self, mesh: &TriMesh) -> Option<TriMesh> {
+        if !matches!(self, ShapeKind::DentedSphere | ShapeKind::SlottedCube) {
+            return None;
+        }
+        let (turn, (lo, hi)) = (cube_rotation().inverse(), slot_box());
+        let eps = Vec3::splat(1e-4);
+        let hidden = |v: [Vec3; 3]| match self {
             // The dent's vertices lie inside the unit sphere, the others on it; the faces
             // across the dent's rim (they span its steep edge) count.
-            ShapeKind::DentedSphere => {
-                Box::new(|v: [Vec3; 3]| v.iter().any(|p| p.length() < 1.0 - 1e-4))
-            }
+            ShapeKind::DentedSphere => v.iter().any(|p| p.length() < 1.0 - 1e-4),
             // A floor or wall face has its centroid below the slotted face, over the slot.
-            ShapeKind::SlottedCube => {
-                let (turn, (lo, hi)) = (cube_rotation().inverse(), slot_box());
-                let eps = Vec3::splat(1e-4);
-                Box::new(move |v: [Vec3; 3]| {
-                    let c = turn * ((v[0] + v[1] + v[2]) / 3.0);
-                    c.z < CUBE_HALF - 1e-4 && c.cmpge(lo - eps).all() && c.cmple(hi + eps).all()
-                })
+            _ => {
+                let c = turn * ((v[0] + v[1] + v[2]) / 3.0);
+                c.z < CUBE_HALF - 1e-4 && c.cmpge(lo - eps).all() && c.cmple(hi + eps).all()
             }
-            _ => return None,
         };
-        let mesh = self.mesh();
         let mut part = TriMesh::default();
         let mut index: HashMap<u32, u32> = HashMap::new();
         for t in &mesh.triangles {

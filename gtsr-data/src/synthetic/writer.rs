@@ -220,7 +220,7 @@ pub fn generate_scene(
     let mesh_path = out_dir.join("mesh.ply");
     write_ply(&mesh_path, &mesh)?;
     files.push(mesh_path);
-    if let Some(hidden) = cfg.shape.hidden_part() {
+    if let Some(hidden) = cfg.shape.hidden_part_of(&mesh) {
         let path = out_dir.join("hidden.ply");
         write_ply(&path, &hidden)?;
         files.push(path);
