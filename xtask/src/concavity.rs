@@ -42,6 +42,57 @@ struct ClassSums {
     light_pixels: usize,
 }
 
+/// Of the pixels into a concavity, how many the extraction's depth still holds beyond the gap,
+/// stage by stage of its preparation (gtsr-train's fusion readout, then
+/// [`gtsr_eval::prepare_depth`], then the median offset taken out as the carving does).
+#[derive(Default)]
+struct ExtractionReading {
+    /// Pixels into a concavity.
+    pixels: usize,
+    /// Of them, beyond the gap in the blended depth, in the fusion readout (at the outlines the
+    /// plane-blurred depth where it lies farther), after the mask, coverage and facing filter,
+    /// and after the depth-edge drop.
+    beyond: [usize; 4],
+    /// Pixels into a concavity dropped by the facing filter, by the coverage or mask.
+    dropped_facing: usize,
+    dropped_covered: usize,
+    /// Per pixel into a concavity that survives the edge drop: its prepared depth, the
+    /// masks' depth, the masks' depth step to its 4-neighbours, the focal length.
+    kept: Vec<(f32, f32, f32, f32)>,
+    /// Every prepared sample's offset behind the masks' depth (footprints, `(d - h) fx / d`).
+    offsets: Vec<f32>,
+}
+
+/// The masks' depth step per pixel: the largest difference to a 4-neighbour (NaN beside a
+/// pixel without depth), as the carving's concavity gate stretches its footprint.
+fn hull_steps(hull: &[f32], w: usize, h: usize) -> Vec<f32> {
+    (0..w * h)
+        .map(|p| {
+            let (x, y) = (p % w, p / w);
+            let d = hull[p];
+            if d <= 0.0 {
+                return f32::NAN;
+            }
+            let mut step = 0.0f32;
+            for (nx, ny) in [
+                (x.wrapping_sub(1), y),
+                (x + 1, y),
+                (x, y.wrapping_sub(1)),
+                (x, y + 1),
+            ] {
+                if nx < w && ny < h {
+                    let dn = hull[ny * w + nx];
+                    if dn <= 0.0 {
+                        return f32::NAN;
+                    }
+                    step = step.max((dn - d).abs());
+                }
+            }
+            step
+        })
+        .collect()
+}
+
 /// The concavity report of `diagnose-surface --concavity-gap`: on every training view,
 /// the masks' mesh (native masks, [`crate::bench_recon::native_masks_mesh`]) and the ground truth are ray cast
 /// through each pixel; a pixel looks into a concavity the masks cannot see when the truth lies
@@ -67,6 +118,8 @@ pub(crate) fn report(
     let opts = trainer.render_options(last, false);
     let mut sums = [ClassSums::default(); 3];
     let mut kept_maps: Vec<ViewMaps> = Vec::new();
+    let mut reading = ExtractionReading::default();
+    let plane_model = model.detached_with_plane_blur(model.blur_px2);
     let mut normal_bins: Vec<(Vec<f32>, Vec<f32>)> =
         vec![Default::default(); NORMAL_BINS.len() + 1];
     for (v, data) in trainer.views().iter().zip(&scene.train) {
@@ -182,6 +235,58 @@ pub(crate) fn report(
                 s.light_left[k] += usize::from(found[p] < 0.5 || !d[p].is_finite() || beyond);
             }
         }
+        // The extraction's reading of the same depth (gtsr-train's fusion_depth at the
+        // default mesh settings: the plane readout at the outlines, then prepare_depth).
+        let readout = model.render_depth(&v.camera, &v.rays)?.with_farther(
+            plane_model.render_depth(&v.camera, &v.rays)?,
+            f64::from(fx),
+            gtsr_eval::OUTLINE_GAP_FOOTPRINTS,
+        );
+        let read_depth = host_vec(readout.depth.clone());
+        let (read_normal, read_plane) = (host_vec(readout.normal), host_vec(readout.plane));
+        let read_cov = host_vec(readout.coverage);
+        let host_rays = host_vec(v.rays.clone());
+        let geometry = gtsr_eval::DepthGeometry {
+            normal: &read_normal,
+            plane: &read_plane,
+            rays: &host_rays,
+            coverage: Some(&read_cov),
+        };
+        let mut filtered = read_depth.clone();
+        gtsr_eval::prepare_depth(&data.camera, &mut filtered, &geometry, mask, false)?;
+        let mut prepared = read_depth.clone();
+        gtsr_eval::prepare_depth(&data.camera, &mut prepared, &geometry, mask, true)?;
+        let steps = hull_steps(hull, w, h);
+        let beyond = |d: f32, p: usize| d > 0.0 && (d - hull[p]) * fx / hull[p] > gap;
+        for p in 0..w * h {
+            if prepared[p] > 0.0 && hull[p] > 0.0 {
+                reading
+                    .offsets
+                    .push((prepared[p] - hull[p]) * fx / prepared[p]);
+            }
+            if class_of(p) != Some(0) {
+                continue;
+            }
+            reading.pixels += 1;
+            for (k, d) in [depth[p], read_depth[p], filtered[p], prepared[p]]
+                .into_iter()
+                .enumerate()
+            {
+                reading.beyond[k] += usize::from(beyond(d, p));
+            }
+            if beyond(read_depth[p], p) && filtered[p] <= 0.0 {
+                let nrm = Vec3::from_slice(&read_normal[3 * p..3 * p + 3]);
+                let ray = Vec3::from_slice(&host_rays[3 * p..3 * p + 3]);
+                if gtsr_eval::tsdf::faces_ray(nrm, ray) {
+                    reading.dropped_covered += 1;
+                } else {
+                    reading.dropped_facing += 1;
+                }
+            }
+            if prepared[p] > 0.0 {
+                reading.kept.push((prepared[p], hull[p], steps[p], fx));
+            }
+        }
         if !anchors.is_empty() {
             let flat = |n: Vec<Vec3>| -> Vec<f32> { n.iter().flat_map(|n| n.to_array()).collect() };
             kept_maps.push(ViewMaps {
@@ -232,6 +337,7 @@ pub(crate) fn report(
             light
         ));
     }
+    md.push_str(&extraction_rows(&mut reading, gap));
     md.push_str(&format!(
         "\nNormal error (degrees, median / mean) of the masks' mesh and of the run's {} \
          against the truth's, on the same pixels, by where the truth lies behind the masks' \
@@ -257,6 +363,44 @@ pub(crate) fn report(
         md.push_str(&refine_rows(scene, gt, &hull_mesh, &kept_maps, args)?);
     }
     Ok(md)
+}
+
+/// The paragraph of [`ExtractionReading`]: of the pixels into a concavity, the share whose
+/// depth lies beyond the gap at each stage of the extraction's preparation, then after the
+/// median offset is taken out (the carving's debias), and through the carving's concavity gate
+/// (`gap` footprints stretched by the masks' depth step).
+fn extraction_rows(r: &mut ExtractionReading, gap: f32) -> String {
+    let n = r.pixels.max(1) as f64;
+    let pct = |k: usize| format!("{:.1} %", 100.0 * k as f64 / n);
+    r.offsets.sort_unstable_by(f32::total_cmp);
+    let median = r.offsets.get(r.offsets.len() / 2).copied().unwrap_or(0.0);
+    let shift = median.max(0.0);
+    let (mut debiased, mut gated) = (0usize, 0usize);
+    for &(d, hd, step, fx) in &r.kept {
+        let d = d * (1.0 - shift / fx);
+        debiased += usize::from((d - hd) * fx / hd > gap);
+        let footprint = d / fx;
+        gated += usize::from(
+            step.is_finite() && d - hd > gap * (footprint * footprint + step * step).sqrt(),
+        );
+    }
+    format!(
+        "\nWhat the extraction reads of those {} pixels (the depth beyond the gap): the blended \
+         depth {}; the fusion readout (the plane-blurred depth at the outlines) {}; after the \
+         mask, coverage and facing filter {} (dropped as not facing the ray {}, as uncovered or \
+         unmasked {}); after the depth-edge drop {}; moved {median:+.2} footprints (the median \
+         offset of every prepared sample, taken out when positive) {}; through the concavity \
+         gate (the gap stretched by the masks' depth step) {}.\n",
+        r.pixels,
+        pct(r.beyond[0]),
+        pct(r.beyond[1]),
+        pct(r.beyond[2]),
+        pct(r.dropped_facing),
+        pct(r.dropped_covered),
+        pct(r.beyond[3]),
+        pct(debiased),
+        pct(gated),
+    )
 }
 
 /// Per training view, what the refinement rows read (normals 3 per pixel, camera space;
