@@ -5,6 +5,7 @@ mod concavity;
 mod diagnose_surface;
 mod fusion_ceiling;
 mod gen_scene;
+mod photo;
 mod shading;
 mod shading_depth;
 mod stability;
@@ -42,6 +43,10 @@ enum Cmd {
     /// with the light moving with each view), and the masks' mesh refined by them, scored
     /// against the ground truth when the scene has one.
     ShadingStereo(shading::ShadingStereoArgs),
+    /// A plane sweep on the training images alone, scored by the ground truth: whether the
+    /// images' multi-view photo-consistency puts a concavity the masks cannot see at its true
+    /// depth or at the masks' lid (development scenes only).
+    PhotoConsistency(photo::PhotoConsistencyArgs),
 }
 
 fn main() {
@@ -59,5 +64,6 @@ fn run(command: Cmd) -> anyhow::Result<()> {
         Cmd::FusionCeiling(args) => fusion_ceiling::run(&args),
         Cmd::DiagnoseSurface(args) => diagnose_surface::run(&args),
         Cmd::ShadingStereo(args) => shading::run(&args),
+        Cmd::PhotoConsistency(args) => photo::run(&args),
     }
 }
