@@ -161,8 +161,9 @@ pub struct DepthMap<'a> {
 }
 
 /// Per pixel of `dm`, the largest depth difference to its 4-neighbours in the image; NaN
-/// where one of them (or the pixel itself) has no depth.
-fn depth_steps(dm: &DepthMap) -> Vec<f32> {
+/// where one of them (or the pixel itself) has no depth. On the masks' own depth, the step
+/// by which [`CarveSettings::concavity_gate`] stretches its footprint.
+pub fn depth_steps(dm: &DepthMap) -> Vec<f32> {
     let (w, h) = (dm.camera.width as usize, dm.camera.height as usize);
     let valid = |d: f32| d.is_finite() && d > 0.0;
     (0..w * h)

@@ -63,36 +63,6 @@ struct ExtractionReading {
     offsets: Vec<f32>,
 }
 
-/// The masks' depth step per pixel: the largest difference to a 4-neighbour (NaN beside a
-/// pixel without depth), as the carving's concavity gate stretches its footprint.
-fn hull_steps(hull: &[f32], w: usize, h: usize) -> Vec<f32> {
-    (0..w * h)
-        .map(|p| {
-            let (x, y) = (p % w, p / w);
-            let d = hull[p];
-            if d <= 0.0 {
-                return f32::NAN;
-            }
-            let mut step = 0.0f32;
-            for (nx, ny) in [
-                (x.wrapping_sub(1), y),
-                (x + 1, y),
-                (x, y.wrapping_sub(1)),
-                (x, y + 1),
-            ] {
-                if nx < w && ny < h {
-                    let dn = hull[ny * w + nx];
-                    if dn <= 0.0 {
-                        return f32::NAN;
-                    }
-                    step = step.max((dn - d).abs());
-                }
-            }
-            step
-        })
-        .collect()
-}
-
 /// The concavity report of `diagnose-surface --concavity-gap`: on every training view,
 /// the masks' mesh (native masks, [`crate::bench_recon::native_masks_mesh`]) and the ground truth are ray cast
 /// through each pixel; a pixel looks into a concavity the masks cannot see when the truth lies
@@ -256,7 +226,11 @@ pub(crate) fn report(
         gtsr_eval::prepare_depth(&data.camera, &mut filtered, &geometry, mask, false)?;
         let mut prepared = read_depth.clone();
         gtsr_eval::prepare_depth(&data.camera, &mut prepared, &geometry, mask, true)?;
-        let steps = hull_steps(hull, w, h);
+        let steps = gtsr_eval::carve::depth_steps(&gtsr_eval::DepthMap {
+            camera: &data.camera,
+            depth: hull,
+            hull_depth: None,
+        });
         let beyond = |d: f32, p: usize| d > 0.0 && (d - hull[p]) * fx / hull[p] > gap;
         for p in 0..w * h {
             if prepared[p] > 0.0 && hull[p] > 0.0 {
