@@ -22,6 +22,7 @@ use clap::Args;
 use glam::Vec3;
 use gtsr_data::Camera;
 use gtsr_eval::MeshRaycaster;
+use gtsr_eval::consistency::nearest_views;
 use gtsr_eval::hull::bilinear;
 use rayon::prelude::*;
 
@@ -39,8 +40,8 @@ pub struct PhotoConsistencyArgs {
     /// masks' mesh on its ray.
     #[arg(long, default_value_t = 3.0)]
     pub gap: f32,
-    /// Neighbour views per reference view (the nearest by the angle between the cameras, as
-    /// seen from the origin).
+    /// Neighbour views per reference view (the nearest by their optical axes,
+    /// [`gtsr_eval::consistency::nearest_views`]).
     #[arg(long, default_value_t = 6)]
     pub neighbours: usize,
     /// How far behind the masks' depth the sweep goes, in footprints.
@@ -105,50 +106,44 @@ fn ncc(a: &[f32], b: &[f32]) -> Option<f32> {
     (den > 1e-12).then(|| sab / den)
 }
 
-/// The `k` training views nearest to view `r` by the angle between their centres' directions
-/// from the origin (not `r` itself, nor a view at the same place).
-fn nearest_views(cameras: &[&Camera], r: usize, k: usize) -> Vec<usize> {
-    let dir = |c: &Camera| c.centre().normalize_or_zero();
-    let d0 = dir(cameras[r]);
-    let mut order: Vec<(f32, usize)> = (0..cameras.len())
-        .filter(|&j| j != r)
-        .map(|j| (d0.dot(dir(cameras[j])).clamp(-1.0, 1.0).acos(), j))
-        .filter(|(a, _)| *a > 1e-3)
+/// The world-space rays of the `(2 r + 1)^2` pixels of the patch around pixel `(i, j)` of
+/// `cam`: the camera centre and, per pixel, the direction whose camera-space z is 1, so that
+/// `centre + d * direction` lies at z-depth `d` (a fronto-parallel patch).
+fn patch_rays(cam: &Camera, (i, j): (usize, usize), r: isize) -> (Vec3, Vec<Vec3>) {
+    let c2w = cam.camera_to_world();
+    let dirs = (-r..=r)
+        .flat_map(|dv| (-r..=r).map(move |du| (du, dv)))
+        .map(|(du, dv)| {
+            let u = i as f32 + 0.5 + du as f32;
+            let v = j as f32 + 0.5 + dv as f32;
+            c2w.transform_vector3(cam.camera_direction(u, v))
+        })
         .collect();
-    order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-    order.into_iter().take(k).map(|(_, j)| j).collect()
+    (cam.centre(), dirs)
 }
 
-/// The sweep's cost at depth `d` for pixel `(i, j)` of the reference camera: the mean
-/// `1 - NCC` over the better half of the neighbours the patch falls into; `None` when none
-/// does.
+/// The sweep's cost at z-depth `d` for the patch whose rays are `rays` ([`patch_rays`]): the
+/// mean `1 - NCC` over the better half of the neighbours the patch falls into; `None` when
+/// none does.
 fn cost_at(
-    cam: &Camera,
     ref_patch: &[f32],
-    (i, j): (usize, usize),
+    (centre, dirs): &(Vec3, Vec<Vec3>),
     d: f32,
-    r: isize,
     neighbours: &[(&Camera, &[f32])],
     scratch: &mut Vec<f32>,
 ) -> Option<f32> {
-    let c2w = cam.camera_to_world();
     let mut costs: Vec<f32> = Vec::with_capacity(neighbours.len());
     'views: for (ncam, ngrey) in neighbours {
         scratch.clear();
-        for dv in -r..=r {
-            for du in -r..=r {
-                let u = i as f32 + 0.5 + du as f32;
-                let v = j as f32 + 0.5 + dv as f32;
-                let x: Vec3 = c2w.transform_point3(cam.camera_direction(u, v) * d);
-                let Some((uv, _)) = ncam.project(x) else {
-                    continue 'views;
-                };
-                let (w, h) = (ncam.width as usize, ncam.height as usize);
-                if uv.x < 0.5 || uv.y < 0.5 || uv.x > w as f32 - 0.5 || uv.y > h as f32 - 0.5 {
-                    continue 'views;
-                }
-                scratch.push(bilinear(ngrey, w, h, uv.x, uv.y));
+        let (w, h) = (ncam.width as usize, ncam.height as usize);
+        for dir in dirs {
+            let Some((uv, _)) = ncam.project(*centre + *dir * d) else {
+                continue 'views;
+            };
+            if uv.x < 0.5 || uv.y < 0.5 || uv.x > w as f32 - 0.5 || uv.y > h as f32 - 0.5 {
+                continue 'views;
             }
+            scratch.push(bilinear(ngrey, w, h, uv.x, uv.y));
         }
         if let Some(c) = ncc(ref_patch, scratch) {
             costs.push(1.0 - c);
@@ -243,20 +238,13 @@ pub fn run(args: &PhotoConsistencyArgs) -> Result<()> {
                     return (class, Some(None));
                 }
                 let fp = hull[p] / fx;
-                let mut costs = Vec::with_capacity(steps + 1);
-                for k in 0..=steps {
-                    let t = k as f32 / STEPS_PER_FOOTPRINT;
-                    let c = cost_at(
-                        cam,
-                        &ref_patch,
-                        (i, j),
-                        hull[p] + t * fp,
-                        r,
-                        &neighbours,
-                        scratch,
-                    );
-                    costs.push(c.unwrap_or(f32::INFINITY));
-                }
+                let rays = patch_rays(cam, (i, j), r);
+                let costs: Vec<f32> = (0..=steps)
+                    .map(|k| {
+                        let d = hull[p] + k as f32 / STEPS_PER_FOOTPRINT * fp;
+                        cost_at(&ref_patch, &rays, d, &neighbours, scratch).unwrap_or(f32::INFINITY)
+                    })
+                    .collect();
                 let truth_t = offset(p);
                 let kt = ((truth_t * STEPS_PER_FOOTPRINT).round().max(0.0) as usize).min(steps);
                 let (kb, cb) = costs
