@@ -80,6 +80,23 @@ impl Scatter {
     pub fn amplification(&self) -> f32 {
         (self.sharp + self.blurred) / self.sharp
     }
+
+    /// The image the model predicts from a mesh's Lambertian radiance `lambert`
+    /// ([`lambert_image`], `width x height`): `a (P * L) + b (G_s * L)`. Read beside the image,
+    /// it shows what the mesh's shape cannot explain: a concavity the mesh lids over is darker
+    /// in the image than in the prediction from the lid.
+    pub fn predict(&self, lambert: &[f32], width: usize, height: usize) -> Vec<f32> {
+        let sharp = gaussian_blur(lambert, width, height, self.pixel);
+        if !self.blurs() {
+            return sharp.iter().map(|x| self.sharp * x).collect();
+        }
+        let wide = gaussian_blur(lambert, width, height, self.sigma.hypot(self.pixel));
+        sharp
+            .iter()
+            .zip(&wide)
+            .map(|(a, b)| self.sharp * a + self.blurred * b)
+            .collect()
+    }
 }
 
 /// Lambert's radiance `(n . w) / r^2` of `mesh` under a unit light at the camera, per pixel
@@ -361,6 +378,39 @@ pub fn unscatter(
     images: &[ShadingImage<'_>],
     min_cos: f32,
 ) -> Result<Unscattered> {
+    let (model, fits) = fit_scatter_on_mesh(mesh, held, images, min_cos)?;
+    let radiance = if model.blurs() {
+        images
+            .par_iter()
+            .map(|v| {
+                deconvolve(
+                    v.radiance,
+                    v.mask,
+                    v.camera.width as usize,
+                    v.camera.height as usize,
+                    &model,
+                    SCATTER_ITERATIONS,
+                )
+            })
+            .collect::<Result<Vec<_>>>()?
+    } else {
+        images.iter().map(|v| v.radiance.to_vec()).collect()
+    };
+    Ok(Unscattered {
+        model,
+        fits,
+        radiance,
+    })
+}
+
+/// [`unscatter`]'s fit without the inversion: the model kept and every fit tried (as
+/// [`Unscattered::model`] and [`Unscattered::fits`]).
+pub fn fit_scatter_on_mesh(
+    mesh: &TriMesh,
+    held: Option<&[bool]>,
+    images: &[ShadingImage<'_>],
+    min_cos: f32,
+) -> Result<(Scatter, Vec<Scatter>)> {
     if held.is_some_and(|h| h.len() != mesh.triangles.len()) {
         return Err(EvalError::InvalidArgument(format!(
             "unscatter: {} held flags for a mesh of {} faces",
@@ -430,38 +480,56 @@ pub fn unscatter(
         Ok((least(&[&[lambert][..], &scattered].concat())?, fits))
     };
     // Where the mesh shows no held face, every pixel counts.
-    let (model, fits) = match fit_all(held.is_some()) {
-        Err(_) if held.is_some() => fit_all(false)?,
-        r => r?,
-    };
-    let radiance = if model.blurs() {
-        images
-            .par_iter()
-            .map(|v| {
-                deconvolve(
-                    v.radiance,
-                    v.mask,
-                    v.camera.width as usize,
-                    v.camera.height as usize,
-                    &model,
-                    SCATTER_ITERATIONS,
-                )
-            })
-            .collect::<Result<Vec<_>>>()?
-    } else {
-        images.iter().map(|v| v.radiance.to_vec()).collect()
-    };
-    Ok(Unscattered {
-        model,
-        fits,
-        radiance,
-    })
+    match fit_all(held.is_some()) {
+        Err(_) if held.is_some() => fit_all(false),
+        r => r,
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::mesh::icosphere;
+
+    /// The prediction of a uniform radiance is `(a + b)` times it away from the border, and
+    /// the model's fit reproduces an image made by the model.
+    #[test]
+    fn the_prediction_is_the_model_applied_and_its_own_fit() {
+        let (w, h) = (48, 40);
+        let model = Scatter {
+            sharp: 0.6,
+            blurred: 0.3,
+            sigma: 3.0,
+            pixel: 0.5,
+            residual: 0.0,
+        };
+        let flat = vec![2.0f32; w * h];
+        let p = model.predict(&flat, w, h);
+        assert!((p[20 * w + 24] - 1.8).abs() < 1e-4, "{}", p[20 * w + 24]);
+        assert!(p[0] < 1.8, "the border gathers less");
+        // A textured Lambert map, the image the model makes of it, and the fit at the
+        // model's widths: the same coefficients.
+        let lambert: Vec<f32> = (0..w * h)
+            .map(|i| 1.0 + 0.5 * ((i % w) as f32 * 0.7).sin() * ((i / w) as f32 * 0.4).cos())
+            .collect();
+        let image = model.predict(&lambert, w, h);
+        let cosine = vec![1.0f32; w * h];
+        let view = ScatterView {
+            width: w,
+            height: h,
+            radiance: &image,
+            mask: None,
+            lambert: &lambert,
+            cosine: &cosine,
+            skip: None,
+        };
+        let fit = fit_scatter(&[view], 0.5, &[3.0], 0.0, 4.0).unwrap()[0];
+        assert!(
+            (fit.sharp - 0.6).abs() < 1e-3 && (fit.blurred - 0.3).abs() < 1e-3,
+            "{fit:?}"
+        );
+        assert!(fit.residual < 1e-6);
+    }
 
     /// A unit impulse blurred keeps its sum, its centre and a variance of `sigma^2` per axis
     /// (within the 3 % the kernel's truncation at three widths takes).

@@ -19,7 +19,8 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use glam::Vec3;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
-use gtsr_eval::shading::view_radiance;
+use gtsr_eval::scatter::{fit_scatter_on_mesh, lambert_image};
+use gtsr_eval::shading::{ShadingImage, view_radiance};
 use gtsr_eval::tsdf::{
     DEPTH_ONLY_TRUNCATION_FOOTPRINTS, default_truncation, median_pixel_footprint,
 };
@@ -101,6 +102,18 @@ pub struct FusionCeilingArgs {
     /// Leave out the TSDF fusions (with `--carve`: only the carving rows).
     #[arg(long)]
     pub no_tsdf: bool,
+    /// With `--carve`, also carve with depth maps that keep the masks' own depth except at
+    /// the *dark* pixels: those whose image is below this share of the scattering model's
+    /// prediction from the masks' mesh (`gtsr_eval::scatter::fit_scatter_on_mesh`,
+    /// `Scatter::predict`), which take the true depth. What the images' unexplained darkness
+    /// would give the mesh with a perfect depth where it points (0: off; needs
+    /// `--resolution` at the dataset's own).
+    #[arg(long, default_value_t = 0.0)]
+    pub dark_below: f32,
+    /// With `--dark-below`: also carve with the dark pixels' depth put this many footprints
+    /// behind the masks' own instead of the truth's (one row each).
+    #[arg(long, num_args = 0..)]
+    pub dark_depth_footprints: Vec<f32>,
 }
 
 /// How near (in pixel footprints) a ground-truth face's centroid must lie to the first hit at
@@ -167,35 +180,7 @@ fn scene_rows(scene_dir: &Path, name: &str, args: &FusionCeilingArgs) -> Result<
 
     // The ground truth's depth per training view, prepared as gtsr-train prepares rendered
     // depth (masked, without grazing pixels and without depth edges).
-    let depths: Vec<Vec<f32>> = scene
-        .train
-        .iter()
-        .map(|v| {
-            let c = &v.camera;
-            let md = caster.render(c);
-            let mask = v.mask.as_deref().expect("checked above");
-            let rays: Vec<Vec3> = (0..md.depth.len())
-                .map(|p| {
-                    let (i, j) = ((p % md.width) as f32, (p / md.width) as f32);
-                    c.camera_direction(i + 0.5, j + 0.5)
-                })
-                .collect();
-            let plane: Vec<f32> = (0..md.depth.len())
-                .map(|p| md.depth[p] * -md.normal[p].dot(rays[p]))
-                .collect();
-            let flat = |v: &[Vec3]| v.iter().flat_map(|x| x.to_array()).collect::<Vec<f32>>();
-            let (normal, rays) = (flat(&md.normal), flat(&rays));
-            let mut depth = md.depth.clone();
-            let geometry = DepthGeometry {
-                normal: &normal,
-                plane: &plane,
-                rays: &rays,
-                coverage: None,
-            };
-            gtsr_eval::prepare_depth(c, &mut depth, &geometry, mask, !args.keep_edges)?;
-            Ok(depth)
-        })
-        .collect::<Result<_>>()?;
+    let depths = prepared_depths(&scene, &caster, args.keep_edges)?;
 
     let mut variants = Vec::new();
     if !args.no_default {
@@ -346,13 +331,13 @@ fn carve_rows(
     let t0 = Instant::now();
     // Bounded by the hull of the masks' edges, as gtsr-train's default; scored against the
     // masks alone. With the images' radiance, for the carving's shading check.
-    let radiance = (native.train.iter())
+    let radiance: Vec<Vec<f32>> = (native.train.iter())
         .map(|v| view_radiance(v, None))
         .collect();
     let alone = MasksAlone::new(masks.iter().map(|(c, m)| (*c, m.to_vec())).collect())?
         .context("empty masks")?
         .with_edge_distance()?
-        .with_radiance(radiance)?;
+        .with_radiance(radiance.clone())?;
     let hull = alone.mesh.clone();
     let mut rows = Vec::new();
     let mut score = |label: String, mesh: &gtsr_data::ply::TriMesh, secs: f64| -> Result<()> {
@@ -426,9 +411,97 @@ fn carve_rows(
         shading_anchor: 0.0,
         ..MeshConfig::default()
     };
-    for bias in std::iter::once(0.0).chain(args.biases.iter().copied()) {
+    // Each carving's label and depth maps: the true depth with each bias, then the masks' own
+    // depth with the true (or a guessed) depth at the dark pixels only.
+    let mut runs: Vec<(String, Vec<Vec<f32>>)> = std::iter::once(0.0)
+        .chain(args.biases.iter().copied())
+        .map(|bias| {
+            (
+                format!(
+                    "masks carved by the true depth {bias:+} (gtsr-train's default extraction)"
+                ),
+                biased_depths(depths, bias),
+            )
+        })
+        .collect();
+    if args.dark_below > 0.0 {
+        if scene.train[0].camera.width != native.train[0].camera.width {
+            bail!(
+                "{}: --dark-below reads the images at their own {} px: give --resolution {}",
+                scene_dir.display(),
+                native.train[0]
+                    .camera
+                    .width
+                    .max(native.train[0].camera.height),
+                native.train[0]
+                    .camera
+                    .width
+                    .max(native.train[0].camera.height)
+            );
+        }
+        let (model, dark) = dark_pixels(&native, &radiance, &hull, args.dark_below)?;
+        let lid = MeshRaycaster::new(&hull, "masks' mesh")?;
+        let lid_depths = prepared_depths(scene, &lid, args.keep_edges)?;
+        // How many dark pixels there are, and how many lie over a concavity (the truth more
+        // than the concavity gate behind the masks' own depth) or on the flush surface.
+        let (mut n, mut concave, mut flush) = (0usize, 0usize, 0usize);
+        for ((d, t), l) in dark.iter().zip(depths).zip(&lid_depths) {
+            for p in 0..d.len() {
+                if !d[p] {
+                    continue;
+                }
+                n += 1;
+                let fp = l[p] / scene.train[0].camera.fx;
+                if t[p] > 0.0 && l[p] > 0.0 {
+                    concave += usize::from(t[p] - l[p] > args.carve_concavity_gate * fp);
+                    flush += usize::from((t[p] - l[p]).abs() < 0.5 * fp);
+                }
+            }
+        }
+        println!(
+            "  dark pixels (image below {} of the model's prediction from the masks' mesh; \
+             a {:.3}, b {:.3}, blur {:.1} px, pixel filter {:.1} px): {n} over {} views, \
+             {concave} over a concavity (truth > {} fp behind), {flush} on the flush surface",
+            args.dark_below,
+            model.sharp,
+            model.blurred,
+            model.sigma,
+            model.pixel,
+            dark.iter().filter(|d| d.iter().any(|x| *x)).count(),
+            args.carve_concavity_gate
+        );
+        let at_dark = |f: &dyn Fn(usize, usize) -> f32| -> Vec<Vec<f32>> {
+            (lid_depths.iter().enumerate())
+                .map(|(k, l)| {
+                    (0..l.len())
+                        .map(|p| if dark[k][p] { f(k, p) } else { l[p] })
+                        .collect()
+                })
+                .collect()
+        };
+        runs.push((
+            format!(
+                "masks carved by their own depth, the true depth at the dark pixels (image < {} x prediction)",
+                args.dark_below
+            ),
+            at_dark(&|k, p| depths[k][p]),
+        ));
+        for &f in &args.dark_depth_footprints {
+            let fx = scene.train[0].camera.fx;
+            runs.push((
+                format!(
+                    "masks carved by their own depth, the dark pixels' {f} fp behind it (image < {} x prediction)",
+                    args.dark_below
+                ),
+                at_dark(&|k, p| {
+                    let l = lid_depths[k][p];
+                    if l > 0.0 { l * (1.0 + f / fx) } else { 0.0 }
+                }),
+            ));
+        }
+    }
+    for (label, biased) in runs {
         let t0 = Instant::now();
-        let biased = biased_depths(depths, bias);
         let views: Vec<FusionView> = scene
             .train
             .iter()
@@ -452,14 +525,91 @@ fn carve_rows(
         for note in &notes {
             println!("  {note}");
         }
-        score(
-            format!("masks carved by the true depth {bias:+} (gtsr-train's default extraction)"),
-            &mesh,
-            t0.elapsed().as_secs_f64(),
-        )?;
+        score(label, &mesh, t0.elapsed().as_secs_f64())?;
     }
     Ok(rows)
 }
+
+/// `caster`'s depth per training view of `scene`, prepared as gtsr-train prepares rendered
+/// depth (masked, without grazing pixels and, unless `keep_edges`, without depth edges).
+fn prepared_depths(
+    scene: &gtsr_data::Scene,
+    caster: &MeshRaycaster,
+    keep_edges: bool,
+) -> Result<Vec<Vec<f32>>> {
+    scene
+        .train
+        .iter()
+        .map(|v| {
+            let c = &v.camera;
+            let md = caster.render(c);
+            let mask = v
+                .mask
+                .as_deref()
+                .context("every training view needs a mask")?;
+            let rays: Vec<Vec3> = (0..md.depth.len())
+                .map(|p| {
+                    let (i, j) = ((p % md.width) as f32, (p / md.width) as f32);
+                    c.camera_direction(i + 0.5, j + 0.5)
+                })
+                .collect();
+            let plane: Vec<f32> = (0..md.depth.len())
+                .map(|p| md.depth[p] * -md.normal[p].dot(rays[p]))
+                .collect();
+            let flat = |v: &[Vec3]| v.iter().flat_map(|x| x.to_array()).collect::<Vec<f32>>();
+            let (normal, rays) = (flat(&md.normal), flat(&rays));
+            let mut depth = md.depth.clone();
+            let geometry = DepthGeometry {
+                normal: &normal,
+                plane: &plane,
+                rays: &rays,
+                coverage: None,
+            };
+            gtsr_eval::prepare_depth(c, &mut depth, &geometry, mask, !keep_edges)?;
+            Ok(depth)
+        })
+        .collect()
+}
+
+/// Per training view, the pixels whose image lies below `below` times the scattering
+/// model's prediction from `hull` (the model fitted on `hull` over every view, the pixels
+/// whose cosine on it is at least [`DARK_MIN_COS`] and whose mask is at least 0.99).
+fn dark_pixels(
+    scene: &gtsr_data::Scene,
+    radiance: &[Vec<f32>],
+    hull: &gtsr_data::ply::TriMesh,
+    below: f32,
+) -> Result<(gtsr_eval::scatter::Scatter, Vec<Vec<bool>>)> {
+    let images: Vec<ShadingImage> = (scene.train.iter().zip(radiance))
+        .map(|(v, r)| ShadingImage {
+            camera: &v.camera,
+            radiance: r,
+            mask: v.mask.as_deref(),
+        })
+        .collect();
+    let (model, _) = fit_scatter_on_mesh(hull, None, &images, DARK_MIN_COS)?;
+    let caster = MeshRaycaster::new(hull, "masks' mesh")?;
+    let dark = (scene.train.iter().zip(radiance))
+        .map(|(v, r)| {
+            let (w, h) = (v.camera.width as usize, v.camera.height as usize);
+            let (lambert, cosine) = lambert_image(&caster, &v.camera);
+            let predicted = model.predict(&lambert, w, h);
+            let mask = v.mask.as_deref().unwrap_or(&[]);
+            (0..w * h)
+                .map(|p| {
+                    cosine[p] >= DARK_MIN_COS
+                        && mask.get(p).is_some_and(|m| *m >= 0.99)
+                        && predicted[p] > 0.0
+                        && r[p] < below * predicted[p]
+                })
+                .collect()
+        })
+        .collect();
+    Ok((model, dark))
+}
+
+/// The least cosine on the masks' mesh at which [`dark_pixels`] reads a pixel.
+const DARK_MIN_COS: f32 = 0.2;
 
 /// The depth maps moved by `bias` along the view (0, no measurement, stays 0).
 fn biased_depths(depths: &[Vec<f32>], bias: f32) -> Vec<Vec<f32>> {

@@ -1,0 +1,338 @@
+//! Whether the images' shading tells a concavity the masks cannot see from the lid the masks
+//! put over it (a diagnosis: it reads the ground truth, so only on development scenes).
+//!
+//! For every training view at the dataset's resolution it fits the scattering model
+//! `I = a (P * L) + b (G_s * L)` (`gtsr_eval::scatter::fit_scatter`, the widths of
+//! `PIXEL_SIGMAS` x `SCATTER_SIGMAS`) to the images' grey linear radiance, with `L` the ground
+//! truth's Lambertian radiance `(n . w) / r^2` under the light at the camera, over the flush
+//! pixels (the truth within half a footprint of the masks' mesh). It then predicts each image
+//! twice, once from the truth's `L` and once from the masks' mesh's (the lid), and compares
+//! the two with the image over the concave pixels (the truth more than `--gap` footprints
+//! behind the masks' mesh) and, as the control, over the flush ones. Where the shading
+//! carries the concavity, the truth's prediction explains those pixels clearly better than
+//! the lid's.
+//!
+//! ```text
+//! cargo run --release -p gtsr-eval --example trench_shading -- ../shared/data/amber_ingot [GAP]
+//! ```
+
+use std::path::PathBuf;
+
+use gtsr_data::{Downscale, LoadOptions, load_scene};
+use gtsr_eval::scatter::{
+    PIXEL_SIGMAS, SCATTER_MAX_AMPLIFICATION, SCATTER_SIGMAS, Scatter, ScatterView, fit_scatter,
+    lambert_image,
+};
+use gtsr_eval::shading::view_radiance;
+use gtsr_eval::{MeshRaycaster, masks_mesh};
+
+/// Sums over a pixel class.
+#[derive(Default)]
+struct Tally {
+    n: usize,
+    image: f64,
+    abs_truth: f64,
+    abs_lid: f64,
+    signed_truth: f64,
+    signed_lid: f64,
+    contrast: f64,
+    truth_better: usize,
+}
+
+impl Tally {
+    fn add(&mut self, i: f32, t: f32, l: f32) {
+        let (i, t, l) = (f64::from(i), f64::from(t), f64::from(l));
+        self.n += 1;
+        self.image += i;
+        self.abs_truth += (i - t).abs();
+        self.abs_lid += (i - l).abs();
+        self.signed_truth += i - t;
+        self.signed_lid += i - l;
+        self.contrast += (t - l).abs();
+        self.truth_better += usize::from((i - t).abs() < (i - l).abs());
+    }
+
+    fn row(&self, label: &str) -> String {
+        let n = self.n.max(1) as f64;
+        let rel = |x: f64| 100.0 * x / self.image.max(f64::MIN_POSITIVE);
+        format!(
+            "| {label} | {} | {:.2} | {:.2} | {:+.2} | {:+.2} | {:.2} | {:.1} % |",
+            self.n,
+            rel(self.abs_truth),
+            rel(self.abs_lid),
+            rel(self.signed_truth),
+            rel(self.signed_lid),
+            rel(self.contrast),
+            100.0 * self.truth_better as f64 / n,
+        )
+    }
+}
+
+fn main() -> anyhow::Result<()> {
+    let mut args = std::env::args().skip(1);
+    let dir: PathBuf = args
+        .next()
+        .ok_or_else(|| anyhow::anyhow!("usage: trench_shading SCENE_DIR [GAP_FOOTPRINTS]"))?
+        .into();
+    let gap: f32 = match args.next() {
+        Some(s) => s
+            .parse()
+            .map_err(|e| anyhow::anyhow!("GAP_FOOTPRINTS '{s}': {e}"))?,
+        None => 3.0,
+    };
+    let opts = LoadOptions {
+        downscale: Downscale::None,
+        ..LoadOptions::default()
+    };
+    let scene = load_scene(&dir, &opts)?;
+    let masks: Vec<_> = scene
+        .train
+        .iter()
+        .map(|v| {
+            v.mask
+                .as_deref()
+                .map(|m| (v.camera, m))
+                .ok_or_else(|| anyhow::anyhow!("view {} has no mask", v.name))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let hull = masks_mesh(&masks, None)?.ok_or_else(|| anyhow::anyhow!("empty masks"))?;
+    let gt_path = scene
+        .mesh_path
+        .clone()
+        .ok_or_else(|| anyhow::anyhow!("{}: no mesh.ply", dir.display()))?;
+    let gt = gtsr_data::ply::read_ply(&gt_path)?;
+    let truth = MeshRaycaster::new(&gt, "ground truth")?;
+    let lid = MeshRaycaster::new(&hull, "masks' mesh")?;
+
+    // Per view: grey linear radiance, both Lambert maps and cosines, both depth maps.
+    struct Maps {
+        w: usize,
+        h: usize,
+        grey: Vec<f32>,
+        mask: Vec<f32>,
+        l_truth: Vec<f32>,
+        c_truth: Vec<f32>,
+        l_lid: Vec<f32>,
+        c_lid: Vec<f32>,
+        behind: Vec<f32>,
+        concave: Vec<bool>,
+        flush: Vec<bool>,
+    }
+    let maps: Vec<Maps> = scene
+        .train
+        .iter()
+        .map(|v| {
+            let (w, h) = (v.width() as usize, v.height() as usize);
+            let grey = view_radiance(v, None);
+            let (l_truth, c_truth) = lambert_image(&truth, &v.camera);
+            let (l_lid, c_lid) = lambert_image(&lid, &v.camera);
+            let (dt, dl) = (truth.render(&v.camera), lid.render(&v.camera));
+            // The masks' mesh's occluding edges are left out (a pixel there mixes two
+            // surfaces); the truth's are not, since a narrow concavity is nearly all edge.
+            let edges = dl.occluding_edges(gtsr_eval::depth::EDGE_FOOTPRINTS);
+            let mask = v.mask.clone().unwrap_or_default();
+            let (mut concave, mut flush) = (vec![false; w * h], vec![false; w * h]);
+            let mut behind_fp = vec![f32::NAN; w * h];
+            for p in 0..w * h {
+                let (zt, zl) = (dt.depth[p], dl.depth[p]);
+                if zt <= 0.0 || zl <= 0.0 || edges[p] || mask[p] < 0.99 {
+                    continue;
+                }
+                let behind = (zt - zl) / (zl / dt.focal);
+                behind_fp[p] = behind;
+                concave[p] = behind > gap;
+                flush[p] = behind.abs() < 0.5;
+            }
+            Maps {
+                w,
+                h,
+                grey,
+                mask,
+                l_truth,
+                c_truth,
+                l_lid,
+                c_lid,
+                behind: behind_fp,
+                concave,
+                flush,
+            }
+        })
+        .collect();
+
+    // The scattering model, fitted on the truth over the flush pixels of every view.
+    let model = fit_best(
+        &maps
+            .iter()
+            .map(|m| {
+                (
+                    m.w,
+                    m.h,
+                    &m.grey[..],
+                    &m.mask[..],
+                    &m.l_truth[..],
+                    &m.c_truth[..],
+                    m.flush.iter().map(|f| !f).collect(),
+                )
+            })
+            .collect::<Vec<_>>(),
+    )?;
+    // The same model fitted on the masks' mesh over every pixel it covers off its occluding
+    // edges: what a run could fit without the truth.
+    let model_lid = fit_best(
+        &maps
+            .iter()
+            .map(|m| {
+                (
+                    m.w,
+                    m.h,
+                    &m.grey[..],
+                    &m.mask[..],
+                    &m.l_lid[..],
+                    &m.c_lid[..],
+                    m.behind.iter().map(|b| b.is_nan()).collect(),
+                )
+            })
+            .collect::<Vec<_>>(),
+    )?;
+
+    let (mut concave, mut flush) = (Tally::default(), Tally::default());
+    let mut views_concave = 0;
+    // Image over the image-only prediction from the masks' mesh, per pixel class.
+    let bins = [
+        (0.5f32, "flush"),
+        (3.0, "3-10 fp behind"),
+        (10.0, "10-20 fp"),
+        (20.0, "20+ fp"),
+    ];
+    let mut ratios: Vec<Vec<f32>> = vec![Vec::new(); bins.len()];
+    let mut other = Vec::new();
+    for m in &maps {
+        let pt = model.predict(&m.l_truth, m.w, m.h);
+        let pl = model.predict(&m.l_lid, m.w, m.h);
+        let pi = model_lid.predict(&m.l_lid, m.w, m.h);
+        let mut any = false;
+        for p in 0..m.w * m.h {
+            if m.concave[p] {
+                concave.add(m.grey[p], pt[p], pl[p]);
+                any = true;
+            } else if m.flush[p] {
+                flush.add(m.grey[p], pt[p], pl[p]);
+            }
+            let b = m.behind[p];
+            if b.is_nan() || pi[p] <= 0.0 || m.c_lid[p] < 0.2 {
+                continue;
+            }
+            let r = m.grey[p] / pi[p];
+            if b.abs() < 0.5 {
+                ratios[0].push(r);
+            } else if let Some(k) = (1..bins.len()).rev().find(|&k| b > bins[k].0) {
+                ratios[k].push(r);
+            } else {
+                other.push(r);
+            }
+        }
+        views_concave += usize::from(any);
+    }
+    println!(
+        "scattering model (fitted on the truth's flush pixels): {}",
+        describe(&model)
+    );
+    println!(
+        "concave: the truth more than {gap} footprints behind the masks' mesh ({views_concave} of {} views show some)",
+        maps.len()
+    );
+    println!();
+    println!(
+        "Errors as % of the image's summed radiance over the class; contrast: |truth's prediction - lid's|."
+    );
+    println!();
+    println!(
+        "| pixels | count | abs error, truth | abs error, lid | signed, truth | signed, lid | contrast | truth nearer |"
+    );
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|");
+    println!("{}", concave.row("concave"));
+    println!("{}", flush.row("flush (control)"));
+    println!();
+    println!(
+        "Image-only: the model fitted on the masks' mesh ({}); the image over its prediction, \
+         pixels whose cosine on the masks' mesh is at least 0.2:",
+        describe(&model_lid)
+    );
+    println!();
+    println!(
+        "| pixels (truth behind the masks' mesh) | count | 10th | median | 90th | below 0.6 |"
+    );
+    println!("|---|---:|---:|---:|---:|---:|");
+    let mut rows: Vec<(String, Vec<f32>)> = bins
+        .iter()
+        .zip(ratios)
+        .map(|((_, l), r)| (l.to_string(), r))
+        .collect();
+    rows.insert(1, ("0.5-3 fp (or in front)".into(), other));
+    for (label, mut r) in rows {
+        r.sort_by(f32::total_cmp);
+        let q = |f: f64| {
+            r.get(((r.len() as f64 - 1.0) * f).round() as usize)
+                .copied()
+                .unwrap_or(f32::NAN)
+        };
+        let low = r.iter().filter(|x| **x < 0.6).count();
+        println!(
+            "| {label} | {} | {:.3} | {:.3} | {:.3} | {} ({:.2} %) |",
+            r.len(),
+            q(0.1),
+            q(0.5),
+            q(0.9),
+            low,
+            100.0 * low as f64 / r.len().max(1) as f64
+        );
+    }
+    Ok(())
+}
+
+/// One view's maps for [`fit_best`]: size, radiance, mask, Lambert, cosine, pixels skipped.
+type FitView<'a> = (
+    usize,
+    usize,
+    &'a [f32],
+    &'a [f32],
+    &'a [f32],
+    &'a [f32],
+    Vec<bool>,
+);
+
+/// The scattering model of least residual over every pixel filter and blur width tried.
+fn fit_best(views: &[FitView<'_>]) -> anyhow::Result<Scatter> {
+    let views: Vec<ScatterView> = views
+        .iter()
+        .map(
+            |(w, h, radiance, mask, lambert, cosine, skip)| ScatterView {
+                width: *w,
+                height: *h,
+                radiance,
+                mask: Some(mask),
+                lambert,
+                cosine,
+                skip: Some(skip),
+            },
+        )
+        .collect();
+    let mut sigmas = vec![0.0];
+    sigmas.extend(SCATTER_SIGMAS);
+    let mut best: Option<Scatter> = None;
+    for pixel in PIXEL_SIGMAS {
+        for s in fit_scatter(&views, pixel, &sigmas, 0.2, SCATTER_MAX_AMPLIFICATION)? {
+            if best.is_none_or(|b| s.residual < b.residual) {
+                best = Some(s);
+            }
+        }
+    }
+    best.ok_or_else(|| anyhow::anyhow!("no scattering model fitted"))
+}
+
+fn describe(m: &Scatter) -> String {
+    format!(
+        "a {:.4}, b {:.4}, blur {:.1} px, pixel filter {:.1} px, relative residual {:.4}",
+        m.sharp, m.blurred, m.sigma, m.pixel, m.residual
+    )
+}
