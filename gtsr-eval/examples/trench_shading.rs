@@ -202,7 +202,9 @@ fn main() -> anyhow::Result<()> {
         (0.5f32, "flush"),
         (3.0, "3-10 fp behind"),
         (10.0, "10-20 fp"),
-        (20.0, "20+ fp"),
+        (20.0, "20-30 fp"),
+        (30.0, "30-40 fp"),
+        (40.0, "40+ fp"),
     ];
     let mut ratios: Vec<Vec<f32>> = vec![Vec::new(); bins.len()];
     let mut other = Vec::new();
