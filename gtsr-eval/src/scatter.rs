@@ -486,6 +486,47 @@ pub fn fit_scatter_on_mesh(
     }
 }
 
+/// The least cosine on the mesh at which [`unexplained_dark`] reads a pixel.
+pub const DARK_MIN_COS: f32 = 0.2;
+
+/// Per image, the pixels that `mesh`'s shape cannot explain as dark as they are: the image is
+/// below `below` times the scattering model's prediction from the mesh ([`Scatter::predict`];
+/// the model fitted on the mesh over every image, [`fit_scatter_on_mesh`]), where the mesh's
+/// cosine is at least [`DARK_MIN_COS`] and the mask (when given) at least 0.99. Over a
+/// concavity the masks' mesh lids over, the image is darker than the lid would be: under the
+/// light at the camera, light reaches a narrow groove's floor and walls at grazing angles and
+/// scatters out over less of the lit surface. Returns the model and the flags.
+pub fn unexplained_dark(
+    mesh: &TriMesh,
+    images: &[ShadingImage<'_>],
+    below: f32,
+) -> Result<(Scatter, Vec<Vec<bool>>)> {
+    if !(below.is_finite() && below > 0.0) {
+        return Err(EvalError::InvalidArgument(format!(
+            "unexplained darkness: the share of the prediction must be positive, got {below}"
+        )));
+    }
+    let (model, _) = fit_scatter_on_mesh(mesh, None, images, DARK_MIN_COS)?;
+    let caster = crate::MeshRaycaster::new(mesh, "the mesh the darkness is judged on")?;
+    let dark = images
+        .par_iter()
+        .map(|v| {
+            let (w, h) = (v.camera.width as usize, v.camera.height as usize);
+            let (lambert, cosine) = lambert_image(&caster, v.camera);
+            let predicted = model.predict(&lambert, w, h);
+            (0..w * h)
+                .map(|p| {
+                    cosine[p] >= DARK_MIN_COS
+                        && v.mask.is_none_or(|m| m[p] >= 0.99)
+                        && predicted[p] > 0.0
+                        && v.radiance[p] < below * predicted[p]
+                })
+                .collect()
+        })
+        .collect();
+    Ok((model, dark))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -653,6 +694,36 @@ mod tests {
             let top = l.iter().fold(0.0f32, |a, b| a.max(*b));
             assert!(d < 1e-2 * top, "{d} against {top}");
         }
+    }
+
+    /// A strip darkened in one view's image is the only unexplained darkness; the undarkened
+    /// images have none.
+    #[test]
+    fn a_darkened_strip_is_unexplained_and_nothing_else_is() {
+        let (mesh, cams, lam, masks) = sphere_views();
+        let blurred = scattered(&lam, 4.0, 0.6, 0.4);
+        let (_, dark) = unexplained_dark(&mesh, &images(&cams, &blurred, &masks), 0.6).unwrap();
+        assert!(dark.iter().all(|d| d.iter().all(|x| !x)));
+        let w = cams[0].width as usize;
+        let mut darkened = blurred.clone();
+        let strip = |p: usize| (w / 2 - 1..=w / 2).contains(&(p % w));
+        for (p, v) in darkened[0].iter_mut().enumerate() {
+            if strip(p) {
+                *v *= 0.3;
+            }
+        }
+        let (_, dark) = unexplained_dark(&mesh, &images(&cams, &darkened, &masks), 0.6).unwrap();
+        let flagged: Vec<usize> = (0..dark[0].len()).filter(|p| dark[0][*p]).collect();
+        assert!(
+            !flagged.is_empty() && flagged.iter().all(|p| strip(*p)),
+            "{flagged:?}"
+        );
+        let inside = (0..lam[0].len())
+            .filter(|p| strip(*p) && masks[0][*p] >= 0.99 && lam[0][*p] > 0.0)
+            .count();
+        assert!(flagged.len() * 2 >= inside, "{} of {inside}", flagged.len());
+        assert!(dark[1..].iter().all(|d| d.iter().all(|x| !x)));
+        assert!(unexplained_dark(&mesh, &images(&cams, &blurred, &masks), 0.0).is_err());
     }
 
     /// The shading refinement inverts the scattering when asked, and says what it fitted; a

@@ -19,7 +19,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use glam::Vec3;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
-use gtsr_eval::scatter::{fit_scatter_on_mesh, lambert_image};
+use gtsr_eval::scatter::unexplained_dark;
 use gtsr_eval::shading::{ShadingImage, view_radiance};
 use gtsr_eval::tsdf::{
     DEPTH_ONLY_TRUNCATION_FOOTPRINTS, default_truncation, median_pixel_footprint,
@@ -104,10 +104,9 @@ pub struct FusionCeilingArgs {
     pub no_tsdf: bool,
     /// With `--carve`, also carve with depth maps that keep the masks' own depth except at
     /// the *dark* pixels: those whose image is below this share of the scattering model's
-    /// prediction from the masks' mesh (`gtsr_eval::scatter::fit_scatter_on_mesh`,
-    /// `Scatter::predict`), which take the true depth. What the images' unexplained darkness
-    /// would give the mesh with a perfect depth where it points (0: off; needs
-    /// `--resolution` at the dataset's own).
+    /// prediction from the masks' mesh (`gtsr_eval::scatter::unexplained_dark`), which take
+    /// the true depth. What the images' unexplained darkness would give the mesh with a
+    /// perfect depth where it points (0: off; needs `--resolution` at the dataset's own).
     #[arg(long, default_value_t = 0.0)]
     pub dark_below: f32,
     /// With `--dark-below`: also carve with the dark pixels' depth put this many footprints
@@ -439,7 +438,14 @@ fn carve_rows(
                     .max(native.train[0].camera.height)
             );
         }
-        let (model, dark) = dark_pixels(&native, &radiance, &hull, args.dark_below)?;
+        let images: Vec<ShadingImage> = (native.train.iter().zip(&radiance))
+            .map(|(v, r)| ShadingImage {
+                camera: &v.camera,
+                radiance: r,
+                mask: v.mask.as_deref(),
+            })
+            .collect();
+        let (model, dark) = unexplained_dark(&hull, &images, args.dark_below)?;
         let lid = MeshRaycaster::new(&hull, "masks' mesh")?;
         let lid_depths = prepared_depths(scene, &lid, args.keep_edges)?;
         // How many dark pixels there are, and how many lie over a concavity (the truth more
@@ -570,46 +576,6 @@ fn prepared_depths(
         })
         .collect()
 }
-
-/// Per training view, the pixels whose image lies below `below` times the scattering
-/// model's prediction from `hull` (the model fitted on `hull` over every view, the pixels
-/// whose cosine on it is at least [`DARK_MIN_COS`] and whose mask is at least 0.99).
-fn dark_pixels(
-    scene: &gtsr_data::Scene,
-    radiance: &[Vec<f32>],
-    hull: &gtsr_data::ply::TriMesh,
-    below: f32,
-) -> Result<(gtsr_eval::scatter::Scatter, Vec<Vec<bool>>)> {
-    let images: Vec<ShadingImage> = (scene.train.iter().zip(radiance))
-        .map(|(v, r)| ShadingImage {
-            camera: &v.camera,
-            radiance: r,
-            mask: v.mask.as_deref(),
-        })
-        .collect();
-    let (model, _) = fit_scatter_on_mesh(hull, None, &images, DARK_MIN_COS)?;
-    let caster = MeshRaycaster::new(hull, "masks' mesh")?;
-    let dark = (scene.train.iter().zip(radiance))
-        .map(|(v, r)| {
-            let (w, h) = (v.camera.width as usize, v.camera.height as usize);
-            let (lambert, cosine) = lambert_image(&caster, &v.camera);
-            let predicted = model.predict(&lambert, w, h);
-            let mask = v.mask.as_deref().unwrap_or(&[]);
-            (0..w * h)
-                .map(|p| {
-                    cosine[p] >= DARK_MIN_COS
-                        && mask.get(p).is_some_and(|m| *m >= 0.99)
-                        && predicted[p] > 0.0
-                        && r[p] < below * predicted[p]
-                })
-                .collect()
-        })
-        .collect();
-    Ok((model, dark))
-}
-
-/// The least cosine on the masks' mesh at which [`dark_pixels`] reads a pixel.
-const DARK_MIN_COS: f32 = 0.2;
 
 /// The depth maps moved by `bias` along the view (0, no measurement, stays 0).
 fn biased_depths(depths: &[Vec<f32>], bias: f32) -> Vec<Vec<f32>> {
