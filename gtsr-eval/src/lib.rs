@@ -24,6 +24,7 @@ pub mod refine;
 pub mod report;
 pub mod scatter;
 pub mod shading;
+pub mod subsurface;
 pub mod timeline;
 pub mod tsdf;
 pub mod visible;

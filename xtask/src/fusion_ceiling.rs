@@ -19,8 +19,12 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use glam::Vec3;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
-use gtsr_eval::scatter::unexplained_dark;
+use gtsr_eval::scatter::{DARK_MIN_COS, unexplained_dark};
 use gtsr_eval::shading::{ShadingImage, view_radiance};
+use gtsr_eval::subsurface::{
+    DarkDepthSettings, SURFACE_WIDTHS_FP, dark_depths, fit_surface_scatter, median_depth,
+    surface_views,
+};
 use gtsr_eval::tsdf::{
     DEPTH_ONLY_TRUNCATION_FOOTPRINTS, default_truncation, median_pixel_footprint,
 };
@@ -113,6 +117,15 @@ pub struct FusionCeilingArgs {
     /// behind the masks' own instead of the truth's (one row each).
     #[arg(long, num_args = 0..)]
     pub dark_depth_footprints: Vec<f32>,
+    /// With `--dark-below`: also carve with the dark pixels' depth read from their darkness
+    /// by the surface-space scattering model (`gtsr_eval::subsurface::dark_depths`, the model
+    /// fitted on the masks' mesh off the dark pixels).
+    #[arg(long)]
+    pub dark_surface_model: bool,
+    /// With `--dark-surface-model`: the light travels only through the medium
+    /// (`gtsr_eval::subsurface::SurfaceMap::gather_through`).
+    #[arg(long)]
+    pub dark_medium: bool,
 }
 
 /// How near (in pixel footprints) a ground-truth face's centroid must lie to the first hit at
@@ -502,6 +515,207 @@ fn carve_rows(
                 at_dark(&|k, p| {
                     let l = lid_depths[k][p];
                     if l > 0.0 { l * (1.0 + f / fx) } else { 0.0 }
+                }),
+            ));
+        }
+        if args.dark_surface_model {
+            let t0 = Instant::now();
+            let views = surface_views(&hull, &images, model.pixel)?;
+            let fp = median_depth(&views) / scene.train[0].camera.fx;
+            let widths: Vec<f32> = SURFACE_WIDTHS_FP.iter().map(|w| w * fp).collect();
+            let fit = fit_surface_scatter(
+                &views,
+                Some(&dark),
+                &widths,
+                model.pixel,
+                DARK_MIN_COS,
+                2,
+                args.dark_medium,
+            )?;
+            println!(
+                "  surface-space scattering on the masks' mesh off the dark pixels: a {:.3}, \
+                 b {:?} at widths {:?} fp, residual {:.4} over {} pixels ({:.1} s)",
+                fit.sharp,
+                fit.weights,
+                SURFACE_WIDTHS_FP,
+                fit.residual,
+                fit.samples,
+                t0.elapsed().as_secs_f64()
+            );
+            // The pixels the surface model cannot explain as dark as they are, per share.
+            for r in [0.3f32, 0.4, 0.5, 0.6, 0.7] {
+                let (mut n, mut concave, mut flush) = (0usize, 0usize, 0usize);
+                for (k, v) in views.iter().enumerate() {
+                    for p in 0..v.radiance.len() {
+                        let z = v.map.depth()[p];
+                        if z <= 0.0
+                            || v.cosine[p] < DARK_MIN_COS
+                            || v.mask.is_some_and(|m| m[p] < 0.99)
+                        {
+                            continue;
+                        }
+                        let pred = fit.predict(&v.map, p, v.map.point(p), v.sharp_lambert[p]);
+                        if v.radiance[p].is_nan() || v.radiance[p] >= r * pred {
+                            continue;
+                        }
+                        n += 1;
+                        let (l, t) = (lid_depths[k][p], depths[k][p]);
+                        let fp = l / scene.train[0].camera.fx;
+                        if t > 0.0 && l > 0.0 {
+                            concave += usize::from(t - l > args.carve_concavity_gate * fp);
+                            flush += usize::from((t - l).abs() < 0.5 * fp);
+                        }
+                    }
+                }
+                println!(
+                    "    below {r} of the surface model's prediction: {n} pixels, {concave} over a concavity, {flush} flush"
+                );
+            }
+            // Diagnosis: the surface model on the truth's own shape, at the dark pixels over a
+            // concavity and the flush ones (fitted there, and the masks' fit applied).
+            {
+                let tviews = surface_views(gt, &images, model.pixel)?;
+                let tfit = fit_surface_scatter(
+                    &tviews,
+                    Some(&dark),
+                    &widths,
+                    model.pixel,
+                    DARK_MIN_COS,
+                    2,
+                    args.dark_medium,
+                )?;
+                println!(
+                    "    on the truth: a {:.3}, b {:?}, residual {:.4}",
+                    tfit.sharp, tfit.weights, tfit.residual
+                );
+                for (name, f) in [("masks' fit", &fit), ("truth's fit", &tfit)] {
+                    let (mut rc, mut nc, mut rf, mut nf, mut rl) =
+                        (Vec::new(), 0, Vec::new(), 0, Vec::new());
+                    for (k, v) in tviews.iter().enumerate() {
+                        for p in 0..v.radiance.len() {
+                            let (l, t) = (lid_depths[k][p], depths[k][p]);
+                            if !dark[k][p] || l <= 0.0 || t <= 0.0 || v.map.depth()[p] <= 0.0 {
+                                continue;
+                            }
+                            let fp = l / scene.train[0].camera.fx;
+                            let pred = f.predict(&v.map, p, v.map.point(p), v.sharp_lambert[p]);
+                            let lidp = fit.predict(
+                                &views[k].map,
+                                p,
+                                views[k].map.point(p),
+                                views[k].sharp_lambert[p],
+                            );
+                            if t - l > args.carve_concavity_gate * fp {
+                                nc += 1;
+                                rc.push(v.radiance[p] / pred.max(1e-12));
+                                rl.push(v.radiance[p] / lidp.max(1e-12));
+                            } else if (t - l).abs() < 0.5 * fp {
+                                nf += 1;
+                                rf.push(v.radiance[p] / pred.max(1e-12));
+                            }
+                        }
+                    }
+                    let med = |v: &mut Vec<f32>| {
+                        if v.is_empty() {
+                            return f32::NAN;
+                        }
+                        let m = v.len() / 2;
+                        *v.select_nth_unstable_by(m, f32::total_cmp).1
+                    };
+                    println!(
+                        "    {name} on the truth's shape: image / prediction median {:.3} over {nc} concave dark pixels (lid {:.3}), {:.3} over {nf} flush dark ones",
+                        med(&mut rc),
+                        med(&mut rl),
+                        med(&mut rf)
+                    );
+                }
+            }
+            // How dark depth alone can make the dark pixels: every dark pixel of a view moved
+            // the deepest offset back, against the lid.
+            {
+                let deepest = DarkDepthSettings::default().max_footprints;
+                let fx = scene.train[0].camera.fx;
+                let mut share: Vec<f32> = Vec::new();
+                let mut image: Vec<f32> = Vec::new();
+                for (v, d) in views.iter().zip(&dark) {
+                    let moved: Vec<f32> = (v.map.depth().iter().zip(d))
+                        .map(|(z, k)| if *k { z * (1.0 + deepest / fx) } else { *z })
+                        .collect();
+                    let mut map = v.map.clone();
+                    map.set_depth(&moved)?;
+                    for p in (0..moved.len()).filter(|p| d[*p] && moved[*p] > 0.0) {
+                        let lid = fit.predict(&v.map, p, v.map.point(p), v.sharp_lambert[p]);
+                        let deep = fit.predict(&map, p, map.point(p), v.sharp_lambert[p]);
+                        share.push(deep / lid.max(1e-12));
+                        image.push(v.radiance[p] / lid.max(1e-12));
+                    }
+                }
+                let med = |v: &mut Vec<f32>| {
+                    let m = v.len() / 2;
+                    if v.is_empty() {
+                        f32::NAN
+                    } else {
+                        *v.select_nth_unstable_by(m, f32::total_cmp).1
+                    }
+                };
+                println!(
+                    "    every dark pixel {deepest} fp deeper: the model's radiance falls to {:.3} of the lid's (median), the image is {:.3} of it",
+                    med(&mut share),
+                    med(&mut image)
+                );
+            }
+            let t0 = Instant::now();
+            let offsets = dark_depths(&fit, &views, &dark, &DarkDepthSettings::default())?;
+            // The offsets read against the truth's, at the dark pixels with both depths.
+            let fx = scene.train[0].camera.fx;
+            let mut pairs: Vec<(f32, f32)> = Vec::new();
+            for k in 0..dark.len() {
+                for p in 0..dark[k].len() {
+                    let (l, t) = (lid_depths[k][p], depths[k][p]);
+                    if dark[k][p] && l > 0.0 && t > 0.0 {
+                        pairs.push((offsets[k][p], (t - l) * fx / l));
+                    }
+                }
+            }
+            let n = pairs.len().max(1) as f32;
+            let mean = |f: &dyn Fn(&(f32, f32)) -> f32| pairs.iter().map(f).sum::<f32>() / n;
+            println!(
+                "  dark pixels' offsets from the surface model ({:.1} s): mean {:.1} fp (truth \
+                 {:.1}), mean |error| {:.1} fp over {} pixels",
+                t0.elapsed().as_secs_f64(),
+                mean(&|x| x.0),
+                mean(&|x| x.1),
+                mean(&|x| (x.0 - x.1).abs()),
+                pairs.len()
+            );
+            for (lo, hi) in [
+                (-1e9, 3.0),
+                (3.0, 10.0),
+                (10.0, 20.0),
+                (20.0, 30.0),
+                (30.0, 45.0),
+                (45.0, 1e9),
+            ] {
+                let bin: Vec<f32> = (pairs.iter())
+                    .filter(|x| x.1 >= lo && x.1 < hi)
+                    .map(|x| x.0)
+                    .collect();
+                if !bin.is_empty() {
+                    println!(
+                        "    truth {lo:.0}..{hi:.0} fp: {} pixels, model's mean {:.1} fp",
+                        bin.len(),
+                        bin.iter().sum::<f32>() / bin.len() as f32
+                    );
+                }
+            }
+            runs.push((
+                format!(
+                    "masks carved by their own depth, the dark pixels at the surface model's depth (image < {} x prediction)",
+                    args.dark_below
+                ),
+                at_dark(&|k, p| {
+                    let l = lid_depths[k][p];
+                    if l > 0.0 { l * (1.0 + offsets[k][p] / fx) } else { 0.0 }
                 }),
             ));
         }
