@@ -10,7 +10,9 @@
 //! the two with the image over the concave pixels (the truth more than `--gap` footprints
 //! behind the masks' mesh) and, as the control, over the flush ones. Where the shading
 //! carries the concavity, the truth's prediction explains those pixels clearly better than
-//! the lid's.
+//! the lid's. A last table bins the image over the diffuse prediction by the cosine between
+//! the normal and the direction to the camera: the specular lobe under the light at the
+//! camera shows where that cosine nears 1.
 //!
 //! ```text
 //! cargo run --release -p gtsr-eval --example trench_shading -- ../shared/data/amber_ingot [GAP]
@@ -207,6 +209,14 @@ fn main() -> anyhow::Result<()> {
         (40.0, "40+ fp"),
     ];
     let mut ratios: Vec<Vec<f32>> = vec![Vec::new(); bins.len()];
+    // Image over the truth's prediction by the truth's cosine to the camera (the specular
+    // lobe under the light at the camera peaks where the normal faces the camera).
+    let mut by_cos: [Vec<Vec<f32>>; 2] = [
+        vec![Vec::new(); COS_BINS.len()],
+        vec![Vec::new(); COS_BINS.len()],
+    ];
+    let mut lid_by_cos: Vec<Vec<f32>> = vec![Vec::new(); COS_BINS.len()];
+    let mut concave_by_lid_cos: Vec<Vec<f32>> = vec![Vec::new(); COS_BINS.len()];
     let mut other = Vec::new();
     for m in &maps {
         let pt = model.predict(&m.l_truth, m.w, m.h);
@@ -234,6 +244,29 @@ fn main() -> anyhow::Result<()> {
             }
         }
         views_concave += usize::from(any);
+        for p in 0..m.w * m.h {
+            let class = if m.concave[p] {
+                1
+            } else if m.flush[p] {
+                0
+            } else {
+                continue;
+            };
+            let c = m.c_truth[p];
+            if pt[p] <= 0.0 || c < COS_BINS[0] {
+                continue;
+            }
+            let k = COS_BINS.iter().rposition(|&b| c >= b).unwrap_or(0);
+            by_cos[class][k].push(m.grey[p] / pt[p]);
+            if class == 1 && pl[p] > 0.0 {
+                lid_by_cos[k].push(m.grey[p] / pl[p]);
+                let c = m.c_lid[p];
+                if c >= COS_BINS[0] {
+                    let k = COS_BINS.iter().rposition(|&b| c >= b).unwrap_or(0);
+                    concave_by_lid_cos[k].push(m.grey[p] / pl[p]);
+                }
+            }
+        }
     }
     println!(
         "scattering model (fitted on the truth's flush pixels): {}",
@@ -289,7 +322,48 @@ fn main() -> anyhow::Result<()> {
             100.0 * low as f64 / r.len().max(1) as f64
         );
     }
+    println!();
+    println!(
+        "By the truth's cosine to the camera: the image over the truth's prediction (median, 90th), \
+         flush and concave, and over the lid's prediction on the concave pixels:"
+    );
+    println!();
+    println!(
+        "| cosine from | flush n | flush median | flush 90th | concave n | concave median | concave 90th | concave / lid median | concave by the lid's cosine: n | its image / lid median |"
+    );
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for (k, lo) in COS_BINS.iter().enumerate() {
+        let mut f = std::mem::take(&mut by_cos[0][k]);
+        let mut c = std::mem::take(&mut by_cos[1][k]);
+        let mut l = std::mem::take(&mut lid_by_cos[k]);
+        let mut b = std::mem::take(&mut concave_by_lid_cos[k]);
+        println!(
+            "| {lo} | {} | {:.3} | {:.3} | {} | {:.3} | {:.3} | {:.3} | {} | {:.3} |",
+            f.len(),
+            quantile(&mut f, 0.5),
+            quantile(&mut f, 0.9),
+            c.len(),
+            quantile(&mut c, 0.5),
+            quantile(&mut c, 0.9),
+            quantile(&mut l, 0.5),
+            b.len(),
+            quantile(&mut b, 0.5),
+        );
+    }
     Ok(())
+}
+
+/// Lower edges of the cosine bins of the specular table.
+const COS_BINS: [f32; 11] = [
+    0.2, 0.5, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.998, 0.999, 0.9995,
+];
+
+fn quantile(v: &mut [f32], q: f64) -> f32 {
+    if v.is_empty() {
+        return f32::NAN;
+    }
+    v.sort_by(f32::total_cmp);
+    v[((v.len() as f64 - 1.0) * q).round() as usize]
 }
 
 /// One view's maps for [`fit_best`]: size, radiance, mask, Lambert, cosine, pixels skipped.
