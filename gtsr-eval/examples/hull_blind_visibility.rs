@@ -4,8 +4,11 @@
 //! resolution the ground truth's own first hit at the sample's pixel lies within 0.011 of it.
 //!
 //! ```text
-//! cargo run --release -p gtsr-eval --example hull_blind_visibility -- ../shared/data/amber_ingot
+//! cargo run --release -p gtsr-eval --example hull_blind_visibility -- ../shared/data/amber_ingot [BLIND.csv]
 //! ```
+//!
+//! With a second argument it also writes the hull-blind samples some view shows there, one
+//! `x,y,z,distance,views` line each.
 
 use std::path::PathBuf;
 
@@ -18,7 +21,7 @@ const BINS: [usize; 6] = [0, 1, 2, 3, 5, 10];
 fn main() -> anyhow::Result<()> {
     let dir: PathBuf = std::env::args()
         .nth(1)
-        .ok_or_else(|| anyhow::anyhow!("usage: hull_blind_visibility SCENE_DIR"))?
+        .ok_or_else(|| anyhow::anyhow!("usage: hull_blind_visibility SCENE_DIR [BLIND.csv]"))?
         .into();
     let opts = LoadOptions {
         downscale: Downscale::None,
@@ -49,6 +52,11 @@ fn main() -> anyhow::Result<()> {
         .map(|v| caster.render(&v.camera))
         .collect();
     let samples = sample_surface(&gt, 20_000, 1, "ground truth")?;
+    // Optionally, the hull-blind samples some view shows, as `x,y,z,distance,views` lines.
+    let mut dump = match std::env::args().nth(2) {
+        Some(path) => Some(std::io::BufWriter::new(std::fs::File::create(&path)?)),
+        None => None,
+    };
     let (mut blind, mut rest) = ([0usize; BINS.len()], [0usize; BINS.len()]);
     let mut blind_dist = [0f64; BINS.len()];
     for p in &samples.points {
@@ -69,6 +77,10 @@ fn main() -> anyhow::Result<()> {
             .count();
         let b = BINS.iter().rposition(|t| views >= *t).unwrap_or(0);
         if d > 0.01 {
+            if let (Some(f), true) = (dump.as_mut(), views > 0) {
+                use std::io::Write;
+                writeln!(f, "{},{},{},{d},{views}", p.x, p.y, p.z)?;
+            }
             blind[b] += 1;
             blind_dist[b] += d as f64;
         } else {

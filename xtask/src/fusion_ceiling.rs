@@ -352,17 +352,24 @@ fn carve_rows(
         .with_radiance(radiance.clone())?;
     let hull = alone.mesh.clone();
     let mut rows = Vec::new();
+    let dir = args.out.join(scene_name(scene_dir));
+    let mut written = 0usize;
     let mut score = |label: String, mesh: &gtsr_data::ply::TriMesh, secs: f64| -> Result<()> {
         let (seen, whole) = score_against_ground_truth(mesh, gt, eyes, Some(&hull))?;
+        // Each carving row's mesh, numbered in the table's order.
+        let path = dir.join(format!("carve-{written}.ply"));
+        gtsr_data::ply::write_ply(&path, mesh)?;
+        written += 1;
         let blind = seen.hull_blind.map(|b| b.blind);
         println!(
             "  {label}: chamfer x1e3 {:.2} (accuracy {:.2}, completeness {:.2}; whole GT {:.2}), \
-             hull-blind {:.2}, {secs:.0} s",
+             hull-blind {:.2}, {secs:.0} s ({})",
             1e3 * seen.chamfer,
             1e3 * seen.accuracy,
             1e3 * seen.completeness,
             1e3 * whole.chamfer,
-            1e3 * blind.unwrap_or(f64::NAN)
+            1e3 * blind.unwrap_or(f64::NAN),
+            path.display()
         );
         rows.push(Row {
             label,
