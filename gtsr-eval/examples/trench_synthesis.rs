@@ -6,16 +6,21 @@
 //! amber_ingot's trench about twice too bright even on its true shape. This example asks the
 //! full light transport instead: `gtsr_data`'s random-walk path tracer renders, at a sample of
 //! pixels of every training view, the ground truth, the masks' mesh and any candidate meshes
-//! given (e.g. the carvings `cargo xtask fusion-ceiling --carve` writes), each scaled by one
-//! gain fitted on flush pixels (the truth within half a footprint of the masks' mesh). Over
+//! given (e.g. the carvings `cargo xtask fusion-ceiling --carve` writes), all scaled by the
+//! gain that fits the masks' mesh's render on flush pixels (the truth within half a footprint of the masks' mesh). Over
 //! the concave pixels (the truth more than 3 footprints behind the masks' mesh) and the dark
 //! ones (`gtsr_eval::scatter::unexplained_dark` at 0.3, no truth), the mesh whose render is
 //! nearest the images is the one the shading prefers.
 //!
 //! ```text
 //! cargo run --release -p gtsr-eval --example trench_synthesis -- ../shared/data/amber_ingot \
-//!     [--spp N] [--mfp-scale S] [CANDIDATE.ply ...]
+//!     [--spp N] [--mfp-scale S] [--hollow-depths D,.. --hollow-radii R,..] [CANDIDATE.ply ...]
 //! ```
+//!
+//! `--hollow-depths` / `--hollow-radii` add candidates made without the truth: the masks'
+//! mesh with the inside removed within R footprints of the dark pixels' rays, from R + 1 to D
+//! footprints behind it (`--hollow-open`: from the lid itself), each printed with its chamfer
+//! as extracted and without its walls no training pixel shows.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -69,6 +74,14 @@ fn main() -> anyhow::Result<()> {
         })?
         .into();
     let (mut spp, mut mfp_scale, mut candidates) = (64u32, 1.0f32, Vec::<PathBuf>::new());
+    // Hollows: (depth, radius) in footprints, the capsules along the dark pixels' rays.
+    let (mut depths, mut radii) = (Vec::<f32>::new(), Vec::<f32>::new());
+    let mut open = false;
+    let list = |v: String| -> anyhow::Result<Vec<f32>> {
+        v.split(',')
+            .map(|x| x.parse::<f32>().map_err(|e| anyhow::anyhow!("'{x}': {e}")))
+            .collect()
+    };
     while let Some(a) = args.next() {
         let mut value = |name: &str| {
             args.next()
@@ -77,6 +90,9 @@ fn main() -> anyhow::Result<()> {
         match a.as_str() {
             "--spp" => spp = value("--spp")?.parse()?,
             "--mfp-scale" => mfp_scale = value("--mfp-scale")?.parse()?,
+            "--hollow-depths" => depths = list(value("--hollow-depths")?)?,
+            "--hollow-radii" => radii = list(value("--hollow-radii")?)?,
+            "--hollow-open" => open = true,
             _ => candidates.push(a.into()),
         }
     }
@@ -168,7 +184,54 @@ fn main() -> anyhow::Result<()> {
     for c in &candidates {
         meshes.push((c.display().to_string(), gtsr_data::ply::read_ply(c)?));
     }
-    for (label, mesh) in &meshes {
+    // Per mesh, the (radius, depth) of a hollow candidate.
+    let mut hollow_of: Vec<Option<(f32, f32)>> = vec![None; meshes.len()];
+    if !depths.is_empty() {
+        let eyes: Vec<gtsr_data::Camera> = scene.train.iter().map(|v| v.camera).collect();
+        let (lo, hi) =
+            gtsr_eval::hull::hull_box(&masks)?.ok_or_else(|| anyhow::anyhow!("empty masks"))?;
+        let voxel = gtsr_eval::hull::masks_voxel(&masks, lo, hi);
+        let base = gtsr_eval::hull::masks_grid(&masks, lo, hi, voxel)?;
+        let lid_depths: Vec<_> = scene.train.iter().map(|v| lid.render(&v.camera)).collect();
+        let to_hull = gtsr_eval::SignedDistance::new(&hull, "masks' mesh")?;
+        for &r in &radii {
+            for &d in &depths {
+                let skin = if open { 0.0 } else { r + 1.0 };
+                let mesh = hollow(&base, &scene, &dark, &lid_depths, r, skin, d);
+                let label = format!("hollow: capsules of {r} fp from {skin} to {d} fp");
+                // As extracted, and without the faces no training pixel shows that are off
+                // the masks' mesh (the walls of the hollow no view sees).
+                let shown = shown_set(&gtsr_eval::pixel_visible_faces(&mesh, &eyes, 3.0)?);
+                let on_hull = |p: Vec3| to_hull.query(p).0.abs() < 0.5 * base.voxel;
+                let culled = keep_faces(&mesh, |t| {
+                    let c = (mesh.positions[t[0] as usize]
+                        + mesh.positions[t[1] as usize]
+                        + mesh.positions[t[2] as usize])
+                        / 3.0;
+                    on_hull(c) || shown.contains(&key(c))
+                });
+                for (what, m) in [("as extracted", &mesh), ("unseen walls culled", &culled)] {
+                    let (seen, _) =
+                        gtsr_eval::score_against_ground_truth(m, &gt, &eyes, Some(&hull))?;
+                    println!(
+                        "{label}, {what}: chamfer x1e3 {:.2} (accuracy {:.2}, completeness {:.2}), hull-blind {:.2}",
+                        1e3 * seen.chamfer,
+                        1e3 * seen.accuracy,
+                        1e3 * seen.completeness,
+                        1e3 * seen.hull_blind.map(|b| b.blind).unwrap_or(f64::NAN)
+                    );
+                }
+                meshes.push((label, mesh));
+                hollow_of.push(Some((r, d)));
+            }
+        }
+    }
+    // The lid first, so its gain is the one every mesh is scaled by.
+    meshes.swap(0, 1);
+    // (radius, depth, the dark pixels' median image / render) of each hollow.
+    let mut crossings: Vec<(f32, f32, f32)> = Vec::new();
+    let mut lid_gain: Option<f32> = None;
+    for ((label, mesh), of) in meshes.iter().zip(&hollow_of) {
         let t0 = Instant::now();
         let tracer = Tracer::new(mesh, material);
         let rendered: Vec<f32> = samples
@@ -200,7 +263,8 @@ fn main() -> anyhow::Result<()> {
                 den += f64::from(*r) * f64::from(*r);
             }
         }
-        let gain = (num / den.max(f64::MIN_POSITIVE)) as f32;
+        // One gain for every mesh: the masks' mesh's (the flush surface is the same in all).
+        let gain = *lid_gain.get_or_insert((num / den.max(f64::MIN_POSITIVE)) as f32);
         let stats = |f: fn(&Sample) -> bool| {
             let mut ratios = Vec::new();
             let (mut err, mut sum) = (0.0f64, 0.0f64);
@@ -224,6 +288,119 @@ fn main() -> anyhow::Result<()> {
         println!(
             "| {label} | {gain:.4} | {flush:.3} | {flush_l1:.1} | {concave:.3} | {concave_l1:.1} | {darkm:.3} | {dark_l1:.1} | {secs:.0} |"
         );
+        if let Some((r, d)) = of {
+            crossings.push((*r, *d, darkm));
+        }
+    }
+    // Per radius, the depth at which the hollow renders the dark pixels as bright as the
+    // images (their median image / render crosses 1, linear between the depths tried).
+    for &r in &radii {
+        let mut row: Vec<_> = crossings.iter().filter(|c| c.0 == r).collect();
+        row.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let at = row.windows(2).find_map(|w| {
+            let ((_, d0, m0), (_, d1, m1)) = (w[0], w[1]);
+            ((m0 - 1.0) * (m1 - 1.0) <= 0.0 && m0 != m1)
+                .then(|| d0 + (d1 - d0) * (1.0 - m0) / (m1 - m0))
+        });
+        match at {
+            Some(d) => println!(
+                "capsules of {r} fp: the dark pixels' median image / render crosses 1 at {d:.1} fp"
+            ),
+            None => println!(
+                "capsules of {r} fp: the dark pixels' median image / render does not cross 1 over the depths tried"
+            ),
+        }
     }
     Ok(())
+}
+
+/// The masks' field with the hull's inside removed within `radius` footprints of the dark
+/// pixels' rays, from `skin` to `depth` footprints behind the lid (with `skin > radius`, a
+/// hollow sealed under the lid), extracted at 0 and kept to its largest component.
+fn hollow(
+    base: &gtsr_eval::Grid,
+    scene: &gtsr_data::Scene,
+    dark: &[Vec<bool>],
+    lid: &[gtsr_eval::MeshDepth],
+    radius: f32,
+    skin: f32,
+    depth: f32,
+) -> gtsr_data::ply::TriMesh {
+    // (a, b, radius in world units) per dark pixel.
+    let mut segments = Vec::new();
+    for ((v, flags), dm) in scene.train.iter().zip(dark).zip(lid) {
+        let cam = &v.camera;
+        let c2w = cam.camera_to_world();
+        for (p, _) in flags.iter().enumerate().filter(|(_, f)| **f) {
+            let z = dm.depth[p];
+            if z <= 0.0 {
+                continue;
+            }
+            let fp = z / dm.focal;
+            let (i, j) = ((p % dm.width) as f32 + 0.5, (p / dm.width) as f32 + 0.5);
+            let dir = cam.camera_direction(i, j);
+            let at = |zz: f32| c2w.transform_point3(dir * zz);
+            segments.push((at(z + skin * fp), at(z + depth * fp), radius * fp));
+        }
+    }
+    let mut grid = base.clone();
+    let [nx, ny, _] = grid.dims;
+    let plane = nx * ny;
+    let origin = grid.origin;
+    let voxel = grid.voxel;
+    grid.values
+        .par_chunks_mut(plane)
+        .enumerate()
+        .for_each(|(k, slice)| {
+            let zk = origin.z + voxel * k as f32;
+            let near: Vec<_> = segments
+                .iter()
+                .filter(|(a, b, r)| zk >= a.z.min(b.z) - r && zk <= a.z.max(b.z) + r)
+                .collect();
+            if near.is_empty() {
+                return;
+            }
+            for jj in 0..ny {
+                for ii in 0..nx {
+                    let p = origin + voxel * Vec3::new(ii as f32, jj as f32, k as f32);
+                    let mut best = f32::NEG_INFINITY;
+                    for (a, b, r) in &near {
+                        let ab = *b - *a;
+                        let t = ((p - *a).dot(ab) / ab.length_squared().max(1e-12)).clamp(0.0, 1.0);
+                        best = best.max(r - (p - (*a + t * ab)).length());
+                    }
+                    let v = &mut slice[ii + nx * jj];
+                    *v = v.max(best);
+                }
+            }
+        });
+    gtsr_eval::largest_component(&gtsr_eval::marching_cubes(&grid, 0.0))
+}
+
+/// A face's centroid quantised to 1e-5 (to match faces between a mesh and its subset).
+fn key(c: Vec3) -> [i64; 3] {
+    [c.x, c.y, c.z].map(|v| (v * 1e5).round() as i64)
+}
+
+/// The centroid keys of a mesh's faces.
+fn shown_set(mesh: &gtsr_data::ply::TriMesh) -> std::collections::HashSet<[i64; 3]> {
+    mesh.triangles
+        .iter()
+        .map(|t| {
+            key((mesh.positions[t[0] as usize]
+                + mesh.positions[t[1] as usize]
+                + mesh.positions[t[2] as usize])
+                / 3.0)
+        })
+        .collect()
+}
+
+/// The mesh with only the faces `keep` accepts (vertices kept as they are).
+fn keep_faces(
+    mesh: &gtsr_data::ply::TriMesh,
+    keep: impl Fn(&[u32; 3]) -> bool,
+) -> gtsr_data::ply::TriMesh {
+    let mut out = mesh.clone();
+    out.triangles.retain(|t| keep(t));
+    out
 }
