@@ -9,12 +9,12 @@
 //! given (e.g. the carvings `cargo xtask fusion-ceiling --carve` writes), all scaled by the
 //! gain that fits the masks' mesh's render on flush pixels (the truth within half a footprint of the masks' mesh). Over
 //! the concave pixels (the truth more than 3 footprints behind the masks' mesh) and the dark
-//! ones (`gtsr_eval::scatter::unexplained_dark` at 0.3, no truth), the mesh whose render is
+//! ones (`gtsr_eval::scatter::unexplained_dark` at 0.3, `--dark-below`; no truth), the mesh whose render is
 //! nearest the images is the one the shading prefers.
 //!
 //! ```text
 //! cargo run --release -p gtsr-eval --example trench_synthesis -- ../shared/data/amber_ingot \
-//!     [--spp N] [--mfp-scale S] [--hollow-depths D,.. --hollow-radii R,..] [CANDIDATE.ply ...]
+//!     [--spp N] [--mfp-scale S] [--dark-below R] [--hollow-depths D,.. --hollow-radii R,..] [CANDIDATE.ply ...]
 //! ```
 //!
 //! `--hollow-depths` / `--hollow-radii` add candidates made without the truth: the masks'
@@ -77,6 +77,7 @@ fn main() -> anyhow::Result<()> {
     // Hollows: (depth, radius) in footprints, the capsules along the dark pixels' rays.
     let (mut depths, mut radii) = (Vec::<f32>::new(), Vec::<f32>::new());
     let mut open = false;
+    let mut below = 0.3f32;
     let list = |v: String| -> anyhow::Result<Vec<f32>> {
         v.split(',')
             .map(|x| x.parse::<f32>().map_err(|e| anyhow::anyhow!("'{x}': {e}")))
@@ -93,6 +94,7 @@ fn main() -> anyhow::Result<()> {
             "--hollow-depths" => depths = list(value("--hollow-depths")?)?,
             "--hollow-radii" => radii = list(value("--hollow-radii")?)?,
             "--hollow-open" => open = true,
+            "--dark-below" => below = value("--dark-below")?.parse()?,
             _ => candidates.push(a.into()),
         }
     }
@@ -131,7 +133,7 @@ fn main() -> anyhow::Result<()> {
             mask: v.mask.as_deref(),
         })
         .collect();
-    let (_, dark) = unexplained_dark(&hull, &images, 0.3)?;
+    let (_, dark) = unexplained_dark(&hull, &images, below)?;
 
     // The pixels: every concave or dark one, and every 97th flush one for the gain.
     let mut samples = Vec::new();
@@ -160,7 +162,7 @@ fn main() -> anyhow::Result<()> {
     }
     let count = |f: fn(&Sample) -> bool| samples.iter().filter(|s| f(s)).count();
     println!(
-        "{} pixels: {} flush (the gain), {} concave, {} dark (below 0.3 of the scattering model); {spp} samples each; mean free path x{mfp_scale}",
+        "{} pixels: {} flush (the gain), {} concave, {} dark (below {below} of the scattering model); {spp} samples each; mean free path x{mfp_scale}",
         samples.len(),
         count(|s| s.calibration),
         count(|s| s.concave),
