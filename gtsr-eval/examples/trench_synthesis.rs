@@ -14,9 +14,11 @@
 //!
 //! ```text
 //! cargo run --release -p gtsr-eval --example trench_synthesis -- ../shared/data/amber_ingot \
-//!     [--spp N] [--mfp-scale S] [--dark-below R] [--hollow-depths D,.. --hollow-radii R,..] [CANDIDATE.ply ...]
+//!     [--spp N] [--mfp-scale S] [--grey-material COLOUR,MFP] [--dark-below R] [--hollow-depths D,.. --hollow-radii R,..] [CANDIDATE.ply ...]
 //! ```
 //!
+//! `--grey-material` replaces the README's material by a grey one (base colour and mean free
+//! path in world units, the same in every channel), which needs no knowledge of the material.
 //! `--hollow-depths` / `--hollow-radii` add candidates made without the truth: the masks'
 //! mesh with the inside removed within R footprints of the dark pixels' rays, from R + 1 to D
 //! footprints behind it (`--hollow-open`: from the lid itself), each printed with its chamfer
@@ -39,17 +41,17 @@ use rayon::prelude::*;
 /// 0.1) as the mean free path, base colour (0.95, 0.65, 0.2) turned into a single-scattering
 /// albedo by Cycles' inversion, roughness 0.2, i.e. GGX alpha 0.04, IOR 1.45, isotropic).
 fn amber_material(mfp_scale: f32) -> Material {
-    let albedo = [0.95f32, 0.65, 0.2].map(|a| {
+    material([0.95, 0.65, 0.2], [0.5, 0.35, 0.1].map(|m| m * mfp_scale))
+}
+
+/// A Blender-style random-walk material: base colour (turned into a single-scattering albedo
+/// by Cycles' inversion) and mean free path per channel, amber_ingot's roughness and IOR.
+fn material(colour: [f32; 3], mfp: [f32; 3]) -> Material {
+    let albedo = colour.map(|a| {
         let r = 4.09712 + 4.20863 * a - (9.59217 + 41.6808 * a + 17.7126 * a * a).sqrt();
         1.0 - r * r
     });
-    Material::from_mfp_albedo(
-        [0.5, 0.35, 0.1].map(|m| m * mfp_scale),
-        albedo,
-        0.0,
-        1.45,
-        0.04,
-    )
+    Material::from_mfp_albedo(mfp, albedo, 0.0, 1.45, 0.04)
 }
 
 /// A pixel to render: view, pixel index, image radiance, class bits.
@@ -78,6 +80,7 @@ fn main() -> anyhow::Result<()> {
     let (mut depths, mut radii) = (Vec::<f32>::new(), Vec::<f32>::new());
     let mut open = false;
     let mut below = 0.3f32;
+    let mut grey: Option<(f32, f32)> = None;
     let list = |v: String| -> anyhow::Result<Vec<f32>> {
         v.split(',')
             .map(|x| x.parse::<f32>().map_err(|e| anyhow::anyhow!("'{x}': {e}")))
@@ -95,6 +98,11 @@ fn main() -> anyhow::Result<()> {
             "--hollow-radii" => radii = list(value("--hollow-radii")?)?,
             "--hollow-open" => open = true,
             "--dark-below" => below = value("--dark-below")?.parse()?,
+            "--grey-material" => {
+                let v = list(value("--grey-material")?)?;
+                anyhow::ensure!(v.len() == 2, "--grey-material takes COLOUR,MFP");
+                grey = Some((v[0], v[1]));
+            }
             _ => candidates.push(a.into()),
         }
     }
@@ -174,7 +182,10 @@ fn main() -> anyhow::Result<()> {
     );
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
 
-    let material = amber_material(mfp_scale);
+    let material = match grey {
+        Some((c, m)) => material([c; 3], [m * mfp_scale; 3]),
+        None => amber_material(mfp_scale),
+    };
     let lighting = Lighting {
         point_intensity: 1.0,
         environment: 0.0,
