@@ -14,11 +14,13 @@
 //!
 //! ```text
 //! cargo run --release -p gtsr-eval --example trench_synthesis -- ../shared/data/amber_ingot \
-//!     [--spp N] [--mfp-scale S] [--grey-material COLOUR,MFP] [--dark-below R] [--hollow-depths D,.. --hollow-radii R,..] [CANDIDATE.ply ...]
+//!     [--spp N] [--mfp-scale S] [--grey-material COLOUR,MFP | --fit-material] [--dark-below R] [--hollow-depths D,.. --hollow-radii R,..] [CANDIDATE.ply ...]
 //! ```
 //!
 //! `--grey-material` replaces the README's material by a grey one (base colour and mean free
-//! path in world units, the same in every channel), which needs no knowledge of the material.
+//! path in world units, the same in every channel), which needs no knowledge of the material;
+//! `--fit-material` picks a base colour and a mean free path per channel on the flush pixels
+//! (and, like `--l1-gain`, scales the renders by the gain of least absolute error).
 //! `--hollow-depths` / `--hollow-radii` add candidates made without the truth: the masks'
 //! mesh with the inside removed within R footprints of the dark pixels' rays, from R + 1 to D
 //! footprints behind it (`--hollow-open`: from the lid itself), each printed with its chamfer
@@ -60,6 +62,7 @@ struct Sample {
     view: usize,
     pixel: usize,
     image: f32,
+    rgb: Vec3,
     calibration: bool,
     concave: bool,
     dark: bool,
@@ -81,6 +84,8 @@ fn main() -> anyhow::Result<()> {
     let mut open = false;
     let mut below = 0.3f32;
     let mut grey: Option<(f32, f32)> = None;
+    let mut fit = false;
+    let mut l1 = false;
     let list = |v: String| -> anyhow::Result<Vec<f32>> {
         v.split(',')
             .map(|x| x.parse::<f32>().map_err(|e| anyhow::anyhow!("'{x}': {e}")))
@@ -98,6 +103,8 @@ fn main() -> anyhow::Result<()> {
             "--hollow-radii" => radii = list(value("--hollow-radii")?)?,
             "--hollow-open" => open = true,
             "--dark-below" => below = value("--dark-below")?.parse()?,
+            "--fit-material" => fit = true,
+            "--l1-gain" => l1 = true,
             "--grey-material" => {
                 let v = list(value("--grey-material")?)?;
                 anyhow::ensure!(v.len() == 2, "--grey-material takes COLOUR,MFP");
@@ -131,6 +138,11 @@ fn main() -> anyhow::Result<()> {
     let lid = MeshRaycaster::new(&hull, "masks' mesh")?;
 
     let radiance: Vec<Vec<f32>> = scene.train.iter().map(|v| view_radiance(v, None)).collect();
+    let channels: Vec<[Vec<f32>; 3]> = scene
+        .train
+        .iter()
+        .map(|v| [0, 1, 2].map(|c| view_radiance(v, Some(c))))
+        .collect();
     let images: Vec<ShadingImage> = scene
         .train
         .iter()
@@ -159,6 +171,7 @@ fn main() -> anyhow::Result<()> {
                 view: k,
                 pixel: p,
                 image: radiance[k][p],
+                rgb: Vec3::new(channels[k][0][p], channels[k][1][p], channels[k][2][p]),
                 calibration: behind.abs() < 0.5 && (k * 7919 + p) % 97 == 0,
                 concave: behind > 3.0,
                 dark: dark[k][p],
@@ -182,13 +195,18 @@ fn main() -> anyhow::Result<()> {
     );
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
 
-    let material = match grey {
-        Some((c, m)) => material([c; 3], [m * mfp_scale; 3]),
-        None => amber_material(mfp_scale),
-    };
     let lighting = Lighting {
         point_intensity: 1.0,
         environment: 0.0,
+    };
+    let material = match (grey, fit) {
+        (_, true) => {
+            let (colour, mfp) = fit_material(&hull, &scene, &samples, spp, lighting);
+            println!("fitted per channel: base colour {colour:?}, mean free path {mfp:?}");
+            material(colour, mfp.map(|m| m * mfp_scale))
+        }
+        (Some((c, m)), false) => material([c; 3], [m * mfp_scale; 3]),
+        (None, false) => amber_material(mfp_scale),
     };
     let mut meshes: Vec<(String, gtsr_data::ply::TriMesh)> = vec![
         ("ground truth".into(), gt.clone()),
@@ -247,26 +265,9 @@ fn main() -> anyhow::Result<()> {
     for ((label, mesh), of) in meshes.iter().zip(&hollow_of) {
         let t0 = Instant::now();
         let tracer = Tracer::new(mesh, material);
-        let rendered: Vec<f32> = samples
-            .par_iter()
-            .map(|s| {
-                let cam = &scene.train[s.view].camera;
-                let c2w = cam.camera_to_world();
-                let origin = Vec3::from(c2w.translation);
-                let w = cam.width as usize;
-                let (i, j) = ((s.pixel % w) as f32, (s.pixel / w) as f32);
-                let mut rng = Rng::new(7, s.view as u64, s.pixel as u64, 0);
-                let shift = Vec2::new(rng.next_f32(), rng.next_f32());
-                let mut sum = Vec3::ZERO;
-                for n in 0..spp {
-                    let o = (shift + Vec2::new(0.754_877_7, 0.569_840_3) * n as f32).fract();
-                    let d = c2w
-                        .transform_vector3(cam.camera_direction(i + o.x, j + o.y))
-                        .normalize();
-                    sum += tracer.sample_path(origin, d, origin, lighting, &mut rng).0;
-                }
-                (sum.x + sum.y + sum.z) / (3.0 * spp as f32)
-            })
+        let rendered: Vec<f32> = render(&tracer, &scene, &samples, spp, lighting)
+            .into_iter()
+            .map(|c| (c.x + c.y + c.z) / 3.0)
             .collect();
         let secs = t0.elapsed().as_secs_f64();
         let (mut num, mut den) = (0.0f64, 0.0f64);
@@ -276,8 +277,24 @@ fn main() -> anyhow::Result<()> {
                 den += f64::from(*r) * f64::from(*r);
             }
         }
-        // One gain for every mesh: the masks' mesh's (the flush surface is the same in all).
-        let gain = *lid_gain.get_or_insert((num / den.max(f64::MIN_POSITIVE)) as f32);
+        // One gain for every mesh: the masks' mesh's (the flush surface is the same in all);
+        // least squares, or with `--l1-gain` (and `--fit-material`) least absolute error.
+        let robust = || {
+            let pairs: Vec<(f32, f32)> = samples
+                .iter()
+                .zip(&rendered)
+                .filter(|(s, _)| s.calibration)
+                .map(|(s, r)| (s.image, *r))
+                .collect();
+            l1_gain(&pairs)
+        };
+        let gain = *lid_gain.get_or_insert_with(|| {
+            if l1 || fit {
+                robust()
+            } else {
+                (num / den.max(f64::MIN_POSITIVE)) as f32
+            }
+        });
         let stats = |f: fn(&Sample) -> bool| {
             let mut ratios = Vec::new();
             let (mut err, mut sum) = (0.0f64, 0.0f64);
@@ -416,4 +433,102 @@ fn keep_faces(
     let mut out = mesh.clone();
     out.triangles.retain(|t| keep(t));
     out
+}
+
+/// Each sample's mean linear RGB over `spp` jittered paths through its pixel.
+fn render(
+    tracer: &Tracer,
+    scene: &gtsr_data::Scene,
+    samples: &[Sample],
+    spp: u32,
+    lighting: Lighting,
+) -> Vec<Vec3> {
+    samples
+        .par_iter()
+        .map(|s| {
+            let cam = &scene.train[s.view].camera;
+            let c2w = cam.camera_to_world();
+            let origin = Vec3::from(c2w.translation);
+            let w = cam.width as usize;
+            let (i, j) = ((s.pixel % w) as f32, (s.pixel / w) as f32);
+            let mut rng = Rng::new(7, s.view as u64, s.pixel as u64, 0);
+            let shift = Vec2::new(rng.next_f32(), rng.next_f32());
+            let mut sum = Vec3::ZERO;
+            for n in 0..spp {
+                let o = (shift + Vec2::new(0.754_877_7, 0.569_840_3) * n as f32).fract();
+                let d = c2w
+                    .transform_vector3(cam.camera_direction(i + o.x, j + o.y))
+                    .normalize();
+                sum += tracer.sample_path(origin, d, origin, lighting, &mut rng).0;
+            }
+            sum / spp.max(1) as f32
+        })
+        .collect()
+}
+
+/// Per channel, the grey material of least L1 over the flush samples (each channel with its
+/// own gain): the grid's base colours and mean free paths, on the masks' mesh. Channels do
+/// not interact in the tracer, so one grey render serves all three.
+fn fit_material(
+    hull: &gtsr_data::ply::TriMesh,
+    scene: &gtsr_data::Scene,
+    samples: &[Sample],
+    spp: u32,
+    lighting: Lighting,
+) -> ([f32; 3], [f32; 3]) {
+    let flush: Vec<Sample> = samples.iter().filter(|s| s.calibration).copied().collect();
+    let images: Vec<Vec3> = flush.iter().map(|s| s.rgb).collect();
+    let base = Tracer::new(hull, material([0.5; 3], [0.1; 3]));
+    let mut best = [(f64::INFINITY, 0.0f32, 0.0f32); 3];
+    for colour in [0.5f32, 0.7, 0.85, 0.95, 0.99] {
+        for mfp in [0.02f32, 0.05, 0.1, 0.2, 0.35, 0.5, 0.8] {
+            let tracer = base.with_material(material([colour; 3], [mfp; 3]));
+            let rendered = render(&tracer, scene, &flush, spp, lighting);
+            let mut row = Vec::new();
+            for c in 0..3 {
+                let pairs: Vec<(f32, f32)> = images
+                    .iter()
+                    .zip(&rendered)
+                    .map(|(i, r)| (i[c], r[c]))
+                    .collect();
+                let sum: f64 = pairs.iter().map(|p| f64::from(p.0)).sum();
+                let gain = f64::from(l1_gain(&pairs));
+                let l1: f64 = images
+                    .iter()
+                    .zip(&rendered)
+                    .map(|(i, r)| (f64::from(i[c]) - gain * f64::from(r[c])).abs())
+                    .sum::<f64>()
+                    / sum.max(f64::MIN_POSITIVE);
+                row.push(format!("{:.1}", 100.0 * l1));
+                if l1 < best[c].0 {
+                    best[c] = (l1, colour, mfp);
+                }
+            }
+            println!(
+                "material fit: colour {colour}, mean free path {mfp}: flush L1 % R/G/B {}",
+                row.join(" / ")
+            );
+        }
+    }
+    (best.map(|b| b.1), best.map(|b| b.2))
+}
+
+/// The gain `g` of least `sum |image - g render|` over `(image, render)` pairs: the median of
+/// `image / render` weighted by `render` (robust to the odd bright sample of a path tracer).
+fn l1_gain(pairs: &[(f32, f32)]) -> f32 {
+    let mut r: Vec<(f32, f32)> = pairs
+        .iter()
+        .filter(|(_, r)| *r > 0.0)
+        .map(|(i, r)| (i / r, *r))
+        .collect();
+    r.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let total: f32 = r.iter().map(|x| x.1).sum();
+    let mut acc = 0.0;
+    for (ratio, w) in &r {
+        acc += w;
+        if acc >= 0.5 * total {
+            return *ratio;
+        }
+    }
+    0.0
 }
