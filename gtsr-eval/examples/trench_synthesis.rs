@@ -24,7 +24,9 @@
 //! `--hollow-depths` / `--hollow-radii` add candidates made without the truth: the masks'
 //! mesh with the inside removed within R footprints of the dark pixels' rays, from R + 1 to D
 //! footprints behind it (`--hollow-open`: from the lid itself), each printed with its chamfer
-//! as extracted and without its walls no training pixel shows.
+//! as extracted and without its walls no training pixel shows. It then prints the depth at
+//! which the dark pixels' median image / render crosses 1, over the candidates whose flush L1
+//! stays within one point of the masks' mesh's.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -55,6 +57,10 @@ fn material(colour: [f32; 3], mfp: [f32; 3]) -> Material {
     });
     Material::from_mfp_albedo(mfp, albedo, 0.0, 1.45, 0.04)
 }
+
+/// How many points of flush L1 (%) a hollow may add to the masks' mesh's before the depth
+/// criterion leaves it out: a candidate that changes the flush surface has cut through it.
+const FLUSH_GUARD: f64 = 1.0;
 
 /// A pixel to render: view, pixel index, image radiance, class bits.
 #[derive(Clone, Copy)]
@@ -259,8 +265,10 @@ fn main() -> anyhow::Result<()> {
     }
     // The lid first, so its gain is the one every mesh is scaled by.
     meshes.swap(0, 1);
-    // (radius, depth, the dark pixels' median image / render) of each hollow.
+    // (radius, depth, the dark pixels' median image / render) of each hollow that keeps the
+    // flush surface: its flush L1 at most FLUSH_GUARD points above the masks' mesh's.
     let mut crossings: Vec<(f32, f32, f32)> = Vec::new();
+    let mut lid_flush_l1: Option<f64> = None;
     let mut lid_gain: Option<f32> = None;
     for ((label, mesh), of) in meshes.iter().zip(&hollow_of) {
         let t0 = Instant::now();
@@ -318,8 +326,15 @@ fn main() -> anyhow::Result<()> {
         println!(
             "| {label} | {gain:.4} | {flush:.3} | {flush_l1:.1} | {concave:.3} | {concave_l1:.1} | {darkm:.3} | {dark_l1:.1} | {secs:.0} |"
         );
+        let reference = *lid_flush_l1.get_or_insert(flush_l1);
         if let Some((r, d)) = of {
-            crossings.push((*r, *d, darkm));
+            if flush_l1 <= reference + FLUSH_GUARD {
+                crossings.push((*r, *d, darkm));
+            } else {
+                println!(
+                    "  (left out of the crossing: its flush L1 {flush_l1:.1} % exceeds the masks' mesh's {reference:.1} % by more than {FLUSH_GUARD})"
+                );
+            }
         }
     }
     // Per radius, the depth at which the hollow renders the dark pixels as bright as the
