@@ -23,7 +23,7 @@ use std::path::PathBuf;
 use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_eval::scatter::{
     PIXEL_SIGMAS, SCATTER_MAX_AMPLIFICATION, SCATTER_SIGMAS, Scatter, ScatterView, fit_scatter,
-    lambert_image,
+    lambert_of_depth,
 };
 use gtsr_eval::shading::view_radiance;
 use gtsr_eval::{MeshRaycaster, masks_mesh};
@@ -126,9 +126,9 @@ fn main() -> anyhow::Result<()> {
         .map(|v| {
             let (w, h) = (v.width() as usize, v.height() as usize);
             let grey = view_radiance(v, None);
-            let (l_truth, c_truth) = lambert_image(&truth, &v.camera);
-            let (l_lid, c_lid) = lambert_image(&lid, &v.camera);
             let (dt, dl) = (truth.render(&v.camera), lid.render(&v.camera));
+            let (l_truth, c_truth) = lambert_of_depth(&dt, &v.camera);
+            let (l_lid, c_lid) = lambert_of_depth(&dl, &v.camera);
             // The masks' mesh's occluding edges are left out (a pixel there mixes two
             // surfaces); the truth's are not, since a narrow concavity is nearly all edge.
             let edges = dl.occluding_edges(gtsr_eval::depth::EDGE_FOOTPRINTS);

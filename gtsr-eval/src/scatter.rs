@@ -102,7 +102,11 @@ impl Scatter {
 /// Lambert's radiance `(n . w) / r^2` of `mesh` under a unit light at the camera, per pixel
 /// centre (0 where the ray misses the mesh), and the cosine `n . w`.
 pub fn lambert_image(caster: &crate::MeshRaycaster<'_>, camera: &Camera) -> (Vec<f32>, Vec<f32>) {
-    let r = caster.render(camera);
+    lambert_of_depth(&caster.render(camera), camera)
+}
+
+/// [`lambert_image`] from a render `camera` already made (its depth and normals).
+pub fn lambert_of_depth(r: &crate::MeshDepth, camera: &Camera) -> (Vec<f32>, Vec<f32>) {
     let w = camera.width as usize;
     (0..r.depth.len())
         .map(|p| {

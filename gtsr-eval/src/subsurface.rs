@@ -42,7 +42,7 @@ use gtsr_data::Camera;
 use rayon::prelude::*;
 
 use crate::error::{EvalError, Result};
-use crate::scatter::{gaussian_blur, lambert_image};
+use crate::scatter::{gaussian_blur, lambert_of_depth};
 use crate::shading::ShadingImage;
 
 /// The profile's widths [`fit_surface_scatter`] fits, in footprints at the views' median
@@ -290,13 +290,6 @@ impl SurfaceScatter {
                 .map(|(s, b)| b * map.gather_through(p, x, *s, self.medium))
                 .sum::<f32>()
     }
-
-    /// The share of a wide flat patch's radiance that leaves blurred by the profile:
-    /// `sum b_k / (a + sum b_k)`.
-    pub fn scattered_share(&self) -> f32 {
-        let b: f32 = self.weights.iter().sum();
-        b / (self.sharp + b).max(f32::MIN_POSITIVE)
-    }
 }
 
 /// One view for [`fit_surface_scatter`] and [`dark_depths`].
@@ -331,10 +324,10 @@ pub fn surface_views<'a>(
                     w * h
                 )));
             }
-            let (lambert, cosine) = lambert_image(&caster, v.camera);
-            let depth = caster.render(v.camera).depth;
+            let render = caster.render(v.camera);
+            let (lambert, cosine) = lambert_of_depth(&render, v.camera);
             Ok(SurfaceView {
-                map: SurfaceMap::of_camera(v.camera, &depth)?,
+                map: SurfaceMap::of_camera(v.camera, &render.depth)?,
                 radiance: v.radiance,
                 sharp_lambert: gaussian_blur(&lambert, w, h, pixel),
                 cosine,
