@@ -12,8 +12,9 @@
 
 use std::path::PathBuf;
 
-use gtsr_data::{Downscale, LoadOptions, load_scene};
-use gtsr_eval::{MeshRaycaster, SignedDistance, masks_mesh, sample_surface};
+use gtsr_eval::{MeshRaycaster, SignedDistance, sample_surface};
+
+mod common;
 
 /// Lower bounds of the view-count bins.
 const BINS: [usize; 6] = [0, 1, 2, 3, 5, 10];
@@ -23,27 +24,7 @@ fn main() -> anyhow::Result<()> {
         .nth(1)
         .ok_or_else(|| anyhow::anyhow!("usage: hull_blind_visibility SCENE_DIR [BLIND.csv]"))?
         .into();
-    let opts = LoadOptions {
-        downscale: Downscale::None,
-        ..LoadOptions::default()
-    };
-    let scene = load_scene(&dir, &opts)?;
-    let masks: Vec<_> = scene
-        .train
-        .iter()
-        .map(|v| {
-            v.mask
-                .as_deref()
-                .map(|m| (v.camera, m))
-                .ok_or_else(|| anyhow::anyhow!("view {} has no mask", v.name))
-        })
-        .collect::<anyhow::Result<_>>()?;
-    let hull = masks_mesh(&masks, None)?.ok_or_else(|| anyhow::anyhow!("empty masks"))?;
-    let gt_path = scene
-        .mesh_path
-        .clone()
-        .ok_or_else(|| anyhow::anyhow!("{}: no mesh.ply", dir.display()))?;
-    let gt = gtsr_data::ply::read_ply(&gt_path)?;
+    let common::DevScene { scene, hull, gt } = common::load(&dir)?;
     let to_hull = SignedDistance::new(&hull, "masks' mesh")?;
     let caster = MeshRaycaster::new(&gt, "ground truth")?;
     let maps: Vec<_> = scene

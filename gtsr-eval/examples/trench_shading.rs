@@ -20,13 +20,14 @@
 
 use std::path::PathBuf;
 
-use gtsr_data::{Downscale, LoadOptions, load_scene};
+use gtsr_eval::MeshRaycaster;
 use gtsr_eval::scatter::{
     PIXEL_SIGMAS, SCATTER_MAX_AMPLIFICATION, SCATTER_SIGMAS, Scatter, ScatterView, fit_scatter,
     lambert_of_depth,
 };
 use gtsr_eval::shading::view_radiance;
-use gtsr_eval::{MeshRaycaster, masks_mesh};
+
+mod common;
 
 /// Sums over a pixel class.
 #[derive(Default)]
@@ -82,27 +83,7 @@ fn main() -> anyhow::Result<()> {
             .map_err(|e| anyhow::anyhow!("GAP_FOOTPRINTS '{s}': {e}"))?,
         None => 3.0,
     };
-    let opts = LoadOptions {
-        downscale: Downscale::None,
-        ..LoadOptions::default()
-    };
-    let scene = load_scene(&dir, &opts)?;
-    let masks: Vec<_> = scene
-        .train
-        .iter()
-        .map(|v| {
-            v.mask
-                .as_deref()
-                .map(|m| (v.camera, m))
-                .ok_or_else(|| anyhow::anyhow!("view {} has no mask", v.name))
-        })
-        .collect::<anyhow::Result<_>>()?;
-    let hull = masks_mesh(&masks, None)?.ok_or_else(|| anyhow::anyhow!("empty masks"))?;
-    let gt_path = scene
-        .mesh_path
-        .clone()
-        .ok_or_else(|| anyhow::anyhow!("{}: no mesh.ply", dir.display()))?;
-    let gt = gtsr_data::ply::read_ply(&gt_path)?;
+    let common::DevScene { scene, hull, gt } = common::load(&dir)?;
     let truth = MeshRaycaster::new(&gt, "ground truth")?;
     let lid = MeshRaycaster::new(&hull, "masks' mesh")?;
 

@@ -35,11 +35,12 @@ use glam::{Vec2, Vec3};
 use gtsr_data::synthetic::material::Material;
 use gtsr_data::synthetic::rng::Rng;
 use gtsr_data::synthetic::tracer::{Lighting, Tracer};
-use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_eval::scatter::unexplained_dark;
 use gtsr_eval::shading::{ShadingImage, view_radiance};
-use gtsr_eval::{MeshRaycaster, masks_mesh};
+use gtsr_eval::{DepthMap, MeshRaycaster};
 use rayon::prelude::*;
+
+mod common;
 
 /// amber_ingot's material as its README states it (Blender's random walk: radius (0.5, 0.35,
 /// 0.1) as the mean free path, base colour (0.95, 0.65, 0.2) turned into a single-scattering
@@ -119,27 +120,8 @@ fn main() -> anyhow::Result<()> {
             _ => candidates.push(a.into()),
         }
     }
-    let opts = LoadOptions {
-        downscale: Downscale::None,
-        ..LoadOptions::default()
-    };
-    let scene = load_scene(&dir, &opts)?;
-    let masks: Vec<_> = scene
-        .train
-        .iter()
-        .map(|v| {
-            v.mask
-                .as_deref()
-                .map(|m| (v.camera, m))
-                .ok_or_else(|| anyhow::anyhow!("view {} has no mask", v.name))
-        })
-        .collect::<anyhow::Result<_>>()?;
-    let hull = masks_mesh(&masks, None)?.ok_or_else(|| anyhow::anyhow!("empty masks"))?;
-    let gt_path = scene
-        .mesh_path
-        .clone()
-        .ok_or_else(|| anyhow::anyhow!("{}: no mesh.ply", dir.display()))?;
-    let gt = gtsr_data::ply::read_ply(&gt_path)?;
+    let common::DevScene { scene, hull, gt } = common::load(&dir)?;
+    let masks = common::masks(&scene)?;
     let truth = MeshRaycaster::new(&gt, "ground truth")?;
     let lid = MeshRaycaster::new(&hull, "masks' mesh")?;
 
@@ -238,15 +220,27 @@ fn main() -> anyhow::Result<()> {
                 let label = format!("hollow: capsules of {r} fp from {skin} to {d} fp");
                 // As extracted, and without the faces no training pixel shows that are off
                 // the masks' mesh (the walls of the hollow no view sees).
-                let shown = shown_set(&gtsr_eval::pixel_visible_faces(&mesh, &eyes, 3.0)?);
-                let on_hull = |p: Vec3| to_hull.query(p).0.abs() < 0.5 * base.voxel;
-                let culled = keep_faces(&mesh, |t| {
-                    let c = (mesh.positions[t[0] as usize]
-                        + mesh.positions[t[1] as usize]
-                        + mesh.positions[t[2] as usize])
-                        / 3.0;
-                    on_hull(c) || shown.contains(&key(c))
-                });
+                let caster = MeshRaycaster::new(&mesh, "hollow")?;
+                let maps: Vec<_> = eyes.iter().map(|c| caster.render(c)).collect();
+                let own: Vec<DepthMap> = eyes
+                    .iter()
+                    .zip(&maps)
+                    .map(|(camera, m)| DepthMap {
+                        camera,
+                        depth: &m.depth,
+                        hull_depth: None,
+                    })
+                    .collect();
+                let shown = gtsr_eval::visible::faces_observed(&mesh, &own, 3.0)?;
+                let on_hull = |t: &[u32; 3]| {
+                    let c = t.iter().map(|&i| mesh.positions[i as usize]).sum::<Vec3>() / 3.0;
+                    to_hull.query(c).0.abs() < 0.5 * base.voxel
+                };
+                let mut culled = mesh.clone();
+                culled.triangles = (mesh.triangles.iter().zip(&shown))
+                    .filter(|(t, s)| **s || on_hull(t))
+                    .map(|(t, _)| *t)
+                    .collect();
                 for (what, m) in [("as extracted", &mesh), ("unseen walls culled", &culled)] {
                     let (seen, _) =
                         gtsr_eval::score_against_ground_truth(m, &gt, &eyes, Some(&hull))?;
@@ -278,28 +272,24 @@ fn main() -> anyhow::Result<()> {
             .map(|c| (c.x + c.y + c.z) / 3.0)
             .collect();
         let secs = t0.elapsed().as_secs_f64();
-        let (mut num, mut den) = (0.0f64, 0.0f64);
-        for (s, r) in samples.iter().zip(&rendered) {
-            if s.calibration {
-                num += f64::from(s.image) * f64::from(*r);
-                den += f64::from(*r) * f64::from(*r);
-            }
-        }
         // One gain for every mesh: the masks' mesh's (the flush surface is the same in all);
         // least squares, or with `--l1-gain` (and `--fit-material`) least absolute error.
-        let robust = || {
-            let pairs: Vec<(f32, f32)> = samples
-                .iter()
-                .zip(&rendered)
+        let gain = *lid_gain.get_or_insert_with(|| {
+            let pairs: Vec<(f32, f32)> = (samples.iter().zip(&rendered))
                 .filter(|(s, _)| s.calibration)
                 .map(|(s, r)| (s.image, *r))
                 .collect();
-            l1_gain(&pairs)
-        };
-        let gain = *lid_gain.get_or_insert_with(|| {
             if l1 || fit {
-                robust()
+                l1_gain(&pairs)
             } else {
+                let num: f64 = pairs
+                    .iter()
+                    .map(|(i, r)| f64::from(*i) * f64::from(*r))
+                    .sum();
+                let den: f64 = pairs
+                    .iter()
+                    .map(|(_, r)| f64::from(*r) * f64::from(*r))
+                    .sum();
                 (num / den.max(f64::MIN_POSITIVE)) as f32
             }
         });
@@ -420,34 +410,6 @@ fn hollow(
             }
         });
     gtsr_eval::largest_component(&gtsr_eval::marching_cubes(&grid, 0.0))
-}
-
-/// A face's centroid quantised to 1e-5 (to match faces between a mesh and its subset).
-fn key(c: Vec3) -> [i64; 3] {
-    [c.x, c.y, c.z].map(|v| (v * 1e5).round() as i64)
-}
-
-/// The centroid keys of a mesh's faces.
-fn shown_set(mesh: &gtsr_data::ply::TriMesh) -> std::collections::HashSet<[i64; 3]> {
-    mesh.triangles
-        .iter()
-        .map(|t| {
-            key((mesh.positions[t[0] as usize]
-                + mesh.positions[t[1] as usize]
-                + mesh.positions[t[2] as usize])
-                / 3.0)
-        })
-        .collect()
-}
-
-/// The mesh with only the faces `keep` accepts (vertices kept as they are).
-fn keep_faces(
-    mesh: &gtsr_data::ply::TriMesh,
-    keep: impl Fn(&[u32; 3]) -> bool,
-) -> gtsr_data::ply::TriMesh {
-    let mut out = mesh.clone();
-    out.triangles.retain(|t| keep(t));
-    out
 }
 
 /// Each sample's mean linear RGB over `spp` jittered paths through its pixel.

@@ -622,18 +622,11 @@ fn carve_rows(
                             }
                         }
                     }
-                    let med = |v: &mut Vec<f32>| {
-                        if v.is_empty() {
-                            return f32::NAN;
-                        }
-                        let m = v.len() / 2;
-                        *v.select_nth_unstable_by(m, f32::total_cmp).1
-                    };
                     println!(
                         "    {name} on the truth's shape: image / prediction median {:.3} over {nc} concave dark pixels (lid {:.3}), {:.3} over {nf} flush dark ones",
-                        med(&mut rc),
-                        med(&mut rl),
-                        med(&mut rf)
+                        median(&mut rc),
+                        median(&mut rl),
+                        median(&mut rf)
                     );
                 }
             }
@@ -657,18 +650,10 @@ fn carve_rows(
                         image.push(v.radiance[p] / lid.max(1e-12));
                     }
                 }
-                let med = |v: &mut Vec<f32>| {
-                    let m = v.len() / 2;
-                    if v.is_empty() {
-                        f32::NAN
-                    } else {
-                        *v.select_nth_unstable_by(m, f32::total_cmp).1
-                    }
-                };
                 println!(
                     "    every dark pixel {deepest} fp deeper: the model's radiance falls to {:.3} of the lid's (median), the image is {:.3} of it",
-                    med(&mut share),
-                    med(&mut image)
+                    median(&mut share),
+                    median(&mut image)
                 );
             }
             let t0 = Instant::now();
@@ -836,4 +821,10 @@ pub fn run(args: &FusionCeilingArgs) -> Result<()> {
     std::fs::write(&path, &md).with_context(|| format!("writing {}", path.display()))?;
     println!("{md}\ntable {}", path.display());
     Ok(())
+}
+
+/// The median of `v` (sorted in place), NaN when empty.
+fn median(v: &mut [f32]) -> f32 {
+    v.sort_by(f32::total_cmp);
+    crate::diagnose_surface::percentile(v, 0.5)
 }
