@@ -14,8 +14,13 @@
 //!
 //! ```text
 //! cargo run --release -p gtsr-eval --example trench_synthesis -- ../shared/data/amber_ingot \
-//!     [--spp N] [--mfp-scale S] [--grey-material COLOUR,MFP | --fit-material] [--dark-below R] [--hollow-depths D,.. --hollow-radii R,..] [CANDIDATE.ply ...]
+//!     [--spp N] [--mfp-scale S,..] [--grey-material COLOUR,MFP | --fit-material] [--dark-below R] [--band PX] [--hollow-depths D,.. --hollow-radii R,..] [CANDIDATE.ply ...]
 //! ```
+//!
+//! `--mfp-scale` takes a list: every mesh is rendered under each scale of the mean free path.
+//! `--band PX` adds the pixels within PX pixels of a dark one (no truth): how fast the
+//! radiance falls towards the gap, which tells the gap's width; the example then prints the
+//! (scale, radius, depth) of least error over the band, the dark pixels, and both.
 //!
 //! `--grey-material` replaces the README's material by a grey one (base colour and mean free
 //! path in world units, the same in every channel), which needs no knowledge of the material;
@@ -35,6 +40,7 @@ use glam::{Vec2, Vec3};
 use gtsr_data::synthetic::material::Material;
 use gtsr_data::synthetic::rng::Rng;
 use gtsr_data::synthetic::tracer::{Lighting, Tracer};
+use gtsr_eval::hollow::{hollow_mesh, l1_gain};
 use gtsr_eval::scatter::unexplained_dark;
 use gtsr_eval::shading::{ShadingImage, view_radiance};
 use gtsr_eval::{DepthMap, MeshRaycaster};
@@ -73,6 +79,9 @@ struct Sample {
     calibration: bool,
     concave: bool,
     dark: bool,
+    /// Not dark, but within `--band` pixels of a dark pixel of its view (no truth): how fast
+    /// the radiance falls towards the gap, which the mean free path sets.
+    band: bool,
 }
 
 fn main() -> anyhow::Result<()> {
@@ -85,7 +94,8 @@ fn main() -> anyhow::Result<()> {
             )
         })?
         .into();
-    let (mut spp, mut mfp_scale, mut candidates) = (64u32, 1.0f32, Vec::<PathBuf>::new());
+    let (mut spp, mut mfp_scales, mut candidates) = (64u32, vec![1.0f32], Vec::<PathBuf>::new());
+    let mut band_px = 0usize;
     // Hollows: (depth, radius) in footprints, the capsules along the dark pixels' rays.
     let (mut depths, mut radii) = (Vec::<f32>::new(), Vec::<f32>::new());
     let mut open = false;
@@ -105,7 +115,8 @@ fn main() -> anyhow::Result<()> {
         };
         match a.as_str() {
             "--spp" => spp = value("--spp")?.parse()?,
-            "--mfp-scale" => mfp_scale = value("--mfp-scale")?.parse()?,
+            "--mfp-scale" => mfp_scales = list(value("--mfp-scale")?)?,
+            "--band" => band_px = value("--band")?.parse()?,
             "--hollow-depths" => depths = list(value("--hollow-depths")?)?,
             "--hollow-radii" => radii = list(value("--hollow-radii")?)?,
             "--hollow-open" => open = true,
@@ -142,6 +153,7 @@ fn main() -> anyhow::Result<()> {
         })
         .collect();
     let (_, dark) = unexplained_dark(&hull, &images, below)?;
+    let band = near_dark(&scene, &dark, band_px);
 
     // The pixels: every concave or dark one, and every 97th flush one for the gain.
     let mut samples = Vec::new();
@@ -163,38 +175,35 @@ fn main() -> anyhow::Result<()> {
                 calibration: behind.abs() < 0.5 && (k * 7919 + p) % 97 == 0,
                 concave: behind > 3.0,
                 dark: dark[k][p],
+                band: band[k][p],
             };
-            if s.calibration || s.concave || s.dark {
+            if s.calibration || s.concave || s.dark || s.band {
                 samples.push(s);
             }
         }
     }
     let count = |f: fn(&Sample) -> bool| samples.iter().filter(|s| f(s)).count();
     println!(
-        "{} pixels: {} flush (the gain), {} concave, {} dark (below {below} of the scattering model); {spp} samples each; mean free path x{mfp_scale}",
+        "{} pixels: {} flush (the gain), {} concave, {} dark (below {below} of the scattering model), {} within {band_px} px of a dark one; {spp} samples each; mean free path x{mfp_scales:?}",
         samples.len(),
         count(|s| s.calibration),
         count(|s| s.concave),
         count(|s| s.dark),
+        count(|s| s.band),
     );
-    println!();
-    println!(
-        "| mesh | gain | flush: image / render median | flush: L1 % | concave: median | concave: L1 % | dark: median | dark: L1 % | render s |"
-    );
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
-
     let lighting = Lighting {
         point_intensity: 1.0,
         environment: 0.0,
     };
-    let material = match (grey, fit) {
-        (_, true) => {
-            let (colour, mfp) = fit_material(&hull, &scene, &samples, spp, lighting);
-            println!("fitted per channel: base colour {colour:?}, mean free path {mfp:?}");
-            material(colour, mfp.map(|m| m * mfp_scale))
-        }
-        (Some((c, m)), false) => material([c; 3], [m * mfp_scale; 3]),
-        (None, false) => amber_material(mfp_scale),
+    let fitted = fit.then(|| {
+        let (colour, mfp) = fit_material(&hull, &scene, &samples, spp, lighting);
+        println!("fitted per channel: base colour {colour:?}, mean free path {mfp:?}");
+        (colour, mfp)
+    });
+    let material_at = |scale: f32| match (grey, fitted) {
+        (_, Some((colour, mfp))) => material(colour, mfp.map(|m| m * scale)),
+        (Some((c, m)), None) => material([c; 3], [m * scale; 3]),
+        (None, None) => amber_material(scale),
     };
     let mut meshes: Vec<(String, gtsr_data::ply::TriMesh)> = vec![
         ("ground truth".into(), gt.clone()),
@@ -216,7 +225,8 @@ fn main() -> anyhow::Result<()> {
         for &r in &radii {
             for &d in &depths {
                 let skin = if open { 0.0 } else { r + 1.0 };
-                let mesh = hollow(&base, &scene, &dark, &lid_depths, r, skin, d);
+                let cameras: Vec<&gtsr_data::Camera> = eyes.iter().collect();
+                let mesh = hollow_mesh(&base, &cameras, &dark, &lid_depths, r, (skin, d));
                 let label = format!("hollow: capsules of {r} fp from {skin} to {d} fp");
                 // As extracted, and without the faces no training pixel shows that are off
                 // the masks' mesh (the walls of the hollow no view sees).
@@ -259,157 +269,157 @@ fn main() -> anyhow::Result<()> {
     }
     // The lid first, so its gain is the one every mesh is scaled by.
     meshes.swap(0, 1);
-    // (radius, depth, the dark pixels' median image / render) of each hollow that keeps the
-    // flush surface: its flush L1 at most FLUSH_GUARD points above the masks' mesh's.
-    let mut crossings: Vec<(f32, f32, f32)> = Vec::new();
-    let mut lid_flush_l1: Option<f64> = None;
-    let mut lid_gain: Option<f32> = None;
-    for ((label, mesh), of) in meshes.iter().zip(&hollow_of) {
-        let t0 = Instant::now();
-        let tracer = Tracer::new(mesh, material);
-        let rendered: Vec<f32> = render(&tracer, &scene, &samples, spp, lighting)
-            .into_iter()
-            .map(|c| (c.x + c.y + c.z) / 3.0)
-            .collect();
-        let secs = t0.elapsed().as_secs_f64();
-        // One gain for every mesh: the masks' mesh's (the flush surface is the same in all);
-        // least squares, or with `--l1-gain` (and `--fit-material`) least absolute error.
-        let gain = *lid_gain.get_or_insert_with(|| {
-            let pairs: Vec<(f32, f32)> = (samples.iter().zip(&rendered))
-                .filter(|(s, _)| s.calibration)
-                .map(|(s, r)| (s.image, *r))
+    let tracers: Vec<Tracer> = meshes
+        .iter()
+        .map(|(_, m)| Tracer::new(m, material_at(1.0)))
+        .collect();
+    // Per mean free path: (scale, radius, depth, band L1 %, dark L1 %) of each hollow kept.
+    let mut fits: Vec<(f32, f32, f32, f64, f64)> = Vec::new();
+    for &mfp_scale in &mfp_scales {
+        println!();
+        println!("mean free path x{mfp_scale}:");
+        println!(
+            "| mesh | gain | flush: image / render median | flush: L1 % | concave: median | concave: L1 % | dark: median | dark: L1 % | band: median | band: L1 % | render s |"
+        );
+        println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+        // (radius, depth, the dark pixels' median image / render) of each hollow that keeps the
+        // flush surface: its flush L1 at most FLUSH_GUARD points above the masks' mesh's.
+        let mut crossings: Vec<(f32, f32, f32)> = Vec::new();
+        let mut lid_flush_l1: Option<f64> = None;
+        let mut lid_gain: Option<f32> = None;
+        for (((label, _), of), base) in meshes.iter().zip(&hollow_of).zip(&tracers) {
+            let t0 = Instant::now();
+            let tracer = base.with_material(material_at(mfp_scale));
+            let rendered: Vec<f32> = render(&tracer, &scene, &samples, spp, lighting)
+                .into_iter()
+                .map(|c| (c.x + c.y + c.z) / 3.0)
                 .collect();
-            if l1 || fit {
-                l1_gain(&pairs)
-            } else {
-                let num: f64 = pairs
-                    .iter()
-                    .map(|(i, r)| f64::from(*i) * f64::from(*r))
-                    .sum();
-                let den: f64 = pairs
-                    .iter()
-                    .map(|(_, r)| f64::from(*r) * f64::from(*r))
-                    .sum();
-                (num / den.max(f64::MIN_POSITIVE)) as f32
-            }
-        });
-        let stats = |f: fn(&Sample) -> bool| {
-            let mut ratios = Vec::new();
-            let (mut err, mut sum) = (0.0f64, 0.0f64);
-            for (s, r) in samples.iter().zip(&rendered) {
-                if f(s) {
-                    let r = gain * r;
-                    if r > 0.0 {
-                        ratios.push(s.image / r);
+            let secs = t0.elapsed().as_secs_f64();
+            // One gain for every mesh: the masks' mesh's (the flush surface is the same in all);
+            // least squares, or with `--l1-gain` (and `--fit-material`) least absolute error.
+            let gain = *lid_gain.get_or_insert_with(|| {
+                let pairs: Vec<(f32, f32)> = (samples.iter().zip(&rendered))
+                    .filter(|(s, _)| s.calibration)
+                    .map(|(s, r)| (s.image, *r))
+                    .collect();
+                if l1 || fit {
+                    l1_gain(pairs.iter().copied())
+                } else {
+                    let num: f64 = pairs
+                        .iter()
+                        .map(|(i, r)| f64::from(*i) * f64::from(*r))
+                        .sum();
+                    let den: f64 = pairs
+                        .iter()
+                        .map(|(_, r)| f64::from(*r) * f64::from(*r))
+                        .sum();
+                    (num / den.max(f64::MIN_POSITIVE)) as f32
+                }
+            });
+            let stats = |f: fn(&Sample) -> bool| {
+                let mut ratios = Vec::new();
+                let (mut err, mut sum) = (0.0f64, 0.0f64);
+                for (s, r) in samples.iter().zip(&rendered) {
+                    if f(s) {
+                        let r = gain * r;
+                        if r > 0.0 {
+                            ratios.push(s.image / r);
+                        }
+                        err += f64::from((s.image - r).abs());
+                        sum += f64::from(s.image);
                     }
-                    err += f64::from((s.image - r).abs());
-                    sum += f64::from(s.image);
+                }
+                ratios.sort_by(f32::total_cmp);
+                let median = ratios.get(ratios.len() / 2).copied().unwrap_or(f32::NAN);
+                (median, 100.0 * err / sum.max(f64::MIN_POSITIVE))
+            };
+            let (flush, flush_l1) = stats(|s| s.calibration);
+            let (concave, concave_l1) = stats(|s| s.concave);
+            let (darkm, dark_l1) = stats(|s| s.dark);
+            let (bandm, band_l1) = stats(|s| s.band);
+            println!(
+                "| {label} | {gain:.4} | {flush:.3} | {flush_l1:.1} | {concave:.3} | {concave_l1:.1} | {darkm:.3} | {dark_l1:.1} | {bandm:.3} | {band_l1:.1} | {secs:.0} |"
+            );
+            let reference = *lid_flush_l1.get_or_insert(flush_l1);
+            if let Some((r, d)) = of {
+                if flush_l1 <= reference + FLUSH_GUARD {
+                    crossings.push((*r, *d, darkm));
+                    fits.push((mfp_scale, *r, *d, band_l1, dark_l1));
+                } else {
+                    println!(
+                        "  (left out of the crossing: its flush L1 {flush_l1:.1} % exceeds the masks' mesh's {reference:.1} % by more than {FLUSH_GUARD})"
+                    );
                 }
             }
-            ratios.sort_by(f32::total_cmp);
-            let median = ratios.get(ratios.len() / 2).copied().unwrap_or(f32::NAN);
-            (median, 100.0 * err / sum.max(f64::MIN_POSITIVE))
-        };
-        let (flush, flush_l1) = stats(|s| s.calibration);
-        let (concave, concave_l1) = stats(|s| s.concave);
-        let (darkm, dark_l1) = stats(|s| s.dark);
-        println!(
-            "| {label} | {gain:.4} | {flush:.3} | {flush_l1:.1} | {concave:.3} | {concave_l1:.1} | {darkm:.3} | {dark_l1:.1} | {secs:.0} |"
-        );
-        let reference = *lid_flush_l1.get_or_insert(flush_l1);
-        if let Some((r, d)) = of {
-            if flush_l1 <= reference + FLUSH_GUARD {
-                crossings.push((*r, *d, darkm));
-            } else {
-                println!(
-                    "  (left out of the crossing: its flush L1 {flush_l1:.1} % exceeds the masks' mesh's {reference:.1} % by more than {FLUSH_GUARD})"
-                );
+        }
+        // Per radius, the depth at which the hollow renders the dark pixels as bright as the
+        // images (their median image / render crosses 1, linear between the depths tried).
+        for &r in &radii {
+            let mut row: Vec<_> = crossings.iter().filter(|c| c.0 == r).collect();
+            row.sort_by(|a, b| a.1.total_cmp(&b.1));
+            let at = row.windows(2).find_map(|w| {
+                let ((_, d0, m0), (_, d1, m1)) = (w[0], w[1]);
+                ((m0 - 1.0) * (m1 - 1.0) <= 0.0 && m0 != m1)
+                    .then(|| d0 + (d1 - d0) * (1.0 - m0) / (m1 - m0))
+            });
+            match at {
+                Some(d) => println!(
+                    "capsules of {r} fp: the dark pixels' median image / render crosses 1 at {d:.1} fp"
+                ),
+                None => println!(
+                    "capsules of {r} fp: the dark pixels' median image / render does not cross 1 over the depths tried"
+                ),
             }
         }
     }
-    // Per radius, the depth at which the hollow renders the dark pixels as bright as the
-    // images (their median image / render crosses 1, linear between the depths tried).
-    for &r in &radii {
-        let mut row: Vec<_> = crossings.iter().filter(|c| c.0 == r).collect();
-        row.sort_by(|a, b| a.1.total_cmp(&b.1));
-        let at = row.windows(2).find_map(|w| {
-            let ((_, d0, m0), (_, d1, m1)) = (w[0], w[1]);
-            ((m0 - 1.0) * (m1 - 1.0) <= 0.0 && m0 != m1)
-                .then(|| d0 + (d1 - d0) * (1.0 - m0) / (m1 - m0))
-        });
-        match at {
-            Some(d) => println!(
-                "capsules of {r} fp: the dark pixels' median image / render crosses 1 at {d:.1} fp"
-            ),
-            None => println!(
-                "capsules of {r} fp: the dark pixels' median image / render does not cross 1 over the depths tried"
-            ),
+    // The (mean free path, radius, depth) of least L1 over the dark pixels and their band
+    // together (pixel-weighted), and over the band alone.
+    if band_px > 0 {
+        let (nb, nd) = (count(|s| s.band) as f64, count(|s| s.dark) as f64);
+        let joint = |f: &(f32, f32, f32, f64, f64)| (nb * f.3 + nd * f.4) / (nb + nd).max(1.0);
+        let best = |key: &dyn Fn(&(f32, f32, f32, f64, f64)) -> f64| {
+            fits.iter()
+                .min_by(|a, b| key(a).total_cmp(&key(b)))
+                .copied()
+        };
+        for (what, pick) in [
+            ("band and dark pixels", best(&joint)),
+            ("band alone", best(&|f| f.3)),
+            ("dark pixels alone", best(&|f| f.4)),
+        ] {
+            if let Some((m, r, d, b, k)) = pick {
+                println!(
+                    "least L1 over the {what}: mean free path x{m}, capsules of {r} fp to {d} fp (band {b:.1} %, dark {k:.1} %)"
+                );
+            }
         }
     }
     Ok(())
 }
 
-/// The masks' field with the hull's inside removed within `radius` footprints of the dark
-/// pixels' rays, from `skin` to `depth` footprints behind the lid (with `skin > radius`, a
-/// hollow sealed under the lid), extracted at 0 and kept to its largest component.
-fn hollow(
-    base: &gtsr_eval::Grid,
-    scene: &gtsr_data::Scene,
-    dark: &[Vec<bool>],
-    lid: &[gtsr_eval::MeshDepth],
-    radius: f32,
-    skin: f32,
-    depth: f32,
-) -> gtsr_data::ply::TriMesh {
-    // (a, b, radius in world units) per dark pixel.
-    let mut segments = Vec::new();
-    for ((v, flags), dm) in scene.train.iter().zip(dark).zip(lid) {
-        let cam = &v.camera;
-        let c2w = cam.camera_to_world();
-        for (p, _) in flags.iter().enumerate().filter(|(_, f)| **f) {
-            let z = dm.depth[p];
-            if z <= 0.0 {
-                continue;
+/// Per view, the pixels within `px` pixels (Chebyshev) of a dark one that are not dark.
+fn near_dark(scene: &gtsr_data::Scene, dark: &[Vec<bool>], px: usize) -> Vec<Vec<bool>> {
+    (scene.train.iter().zip(dark))
+        .map(|(v, d)| {
+            let (w, h) = (v.camera.width as usize, v.camera.height as usize);
+            let mut out = vec![false; w * h];
+            if px == 0 {
+                return out;
             }
-            let fp = z / dm.focal;
-            let (i, j) = ((p % dm.width) as f32 + 0.5, (p / dm.width) as f32 + 0.5);
-            let dir = cam.camera_direction(i, j);
-            let at = |zz: f32| c2w.transform_point3(dir * zz);
-            segments.push((at(z + skin * fp), at(z + depth * fp), radius * fp));
-        }
-    }
-    let mut grid = base.clone();
-    let [nx, ny, _] = grid.dims;
-    let plane = nx * ny;
-    let origin = grid.origin;
-    let voxel = grid.voxel;
-    grid.values
-        .par_chunks_mut(plane)
-        .enumerate()
-        .for_each(|(k, slice)| {
-            let zk = origin.z + voxel * k as f32;
-            let near: Vec<_> = segments
-                .iter()
-                .filter(|(a, b, r)| zk >= a.z.min(b.z) - r && zk <= a.z.max(b.z) + r)
-                .collect();
-            if near.is_empty() {
-                return;
-            }
-            for jj in 0..ny {
-                for ii in 0..nx {
-                    let p = origin + voxel * Vec3::new(ii as f32, jj as f32, k as f32);
-                    let mut best = f32::NEG_INFINITY;
-                    for (a, b, r) in &near {
-                        let ab = *b - *a;
-                        let t = ((p - *a).dot(ab) / ab.length_squared().max(1e-12)).clamp(0.0, 1.0);
-                        best = best.max(r - (p - (*a + t * ab)).length());
+            for p in (0..w * h).filter(|&p| d[p]) {
+                let (i, j) = (p % w, p / w);
+                for jj in j.saturating_sub(px)..(j + px + 1).min(h) {
+                    for ii in i.saturating_sub(px)..(i + px + 1).min(w) {
+                        out[ii + w * jj] = true;
                     }
-                    let v = &mut slice[ii + nx * jj];
-                    *v = v.max(best);
                 }
             }
-        });
-    gtsr_eval::largest_component(&gtsr_eval::marching_cubes(&grid, 0.0))
+            for (o, x) in out.iter_mut().zip(d) {
+                *o &= !x;
+            }
+            out
+        })
+        .collect()
 }
 
 /// Each sample's mean linear RGB over `spp` jittered paths through its pixel.
@@ -469,7 +479,7 @@ fn fit_material(
                     .map(|(i, r)| (i[c], r[c]))
                     .collect();
                 let sum: f64 = pairs.iter().map(|p| f64::from(p.0)).sum();
-                let gain = f64::from(l1_gain(&pairs));
+                let gain = f64::from(l1_gain(pairs.iter().copied()));
                 let l1: f64 = images
                     .iter()
                     .zip(&rendered)
@@ -488,24 +498,4 @@ fn fit_material(
         }
     }
     (best.map(|b| b.1), best.map(|b| b.2))
-}
-
-/// The gain `g` of least `sum |image - g render|` over `(image, render)` pairs: the median of
-/// `image / render` weighted by `render` (robust to the odd bright sample of a path tracer).
-fn l1_gain(pairs: &[(f32, f32)]) -> f32 {
-    let mut r: Vec<(f32, f32)> = pairs
-        .iter()
-        .filter(|(_, r)| *r > 0.0)
-        .map(|(i, r)| (i / r, *r))
-        .collect();
-    r.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let total: f32 = r.iter().map(|x| x.1).sum();
-    let mut acc = 0.0;
-    for (ratio, w) in &r {
-        acc += w;
-        if acc >= 0.5 * total {
-            return *ratio;
-        }
-    }
-    0.0
 }

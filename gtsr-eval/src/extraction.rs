@@ -355,6 +355,13 @@ pub struct MeshConfig {
     /// masks' coverage interpolated between pixel centres (the baseline).
     #[arg(skip = true)]
     pub edge_hull: bool,
+    /// Carving: read a hollow behind the masks' lid from the images by path tracing
+    /// ([`crate::hollow::read_hollow`], where the masks carry the images and the fusion views
+    /// are their size), and carve the dark pixels that far behind the lid. A scene without
+    /// dark pixels costs one scattering fit.
+    #[arg(long = "hollow-search", id = "mesh.hollow_search", value_name = "BOOL",
+          default_value_t = true, action = clap::ArgAction::Set)]
+    pub hollow_search: bool,
     /// With [`MeshConfig::edge_hull`]: read every mask with a Gaussian edge profile of this
     /// many pixels, or as box-filtered at 0 (`None`: the profile the masks' edge width says,
     /// [`crate::EdgeProfile::from_width`]).
@@ -403,6 +410,7 @@ impl Default for MeshConfig {
             depth_consistency: None,
             edge_hull: true,
             edge_sigma: None,
+            hollow_search: true,
         }
     }
 }
@@ -633,6 +641,10 @@ pub struct MasksAlone {
     /// ([`crate::shading::linear_radiance`]), for [`MeshConfig::shading_anchor`]; `None`: the
     /// mesh is not refined by the shading.
     pub radiance: Option<Vec<Vec<f32>>>,
+    /// The images' own linear radiance, as [`MasksAlone::with_radiance`] gave it (kept when
+    /// [`MasksAlone::with_rendered_radiance`] blends a render into `radiance`), for
+    /// [`MeshConfig::hollow_search`].
+    pub images: Option<Vec<Vec<f32>>>,
     /// The hull from the masks' edges ([`MasksAlone::with_edge_distance`]); `None`: the
     /// extraction is bounded by [`MasksAlone::mesh`]'s field.
     pub edge_hull: Option<EdgeHull>,
@@ -671,6 +683,7 @@ impl MasksAlone {
             mesh,
             voxel,
             radiance: None,
+            images: None,
             edge_hull: None,
         }))
     }
@@ -695,6 +708,7 @@ impl MasksAlone {
                 });
             }
         }
+        self.images = Some(radiance.clone());
         self.radiance = Some(radiance);
         Ok(self)
     }
@@ -1002,6 +1016,9 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
                 ));
             }
         }
+        if config.hollow_search && !inputs.coarse {
+            carve_hollow(inputs, masks, &mut maps, &mut notes)?;
+        }
         let mut mesh =
             carve_inside_bound(config, inputs, masks, &maps, &hull_maps, offset, &mut notes)?;
         if config.shading_anchor > 0.0
@@ -1154,6 +1171,75 @@ struct DepthFrom<'a> {
 
 /// The views and the mesh that bound the carving: the edge hull where the masks carry one
 /// and the settings ask for it, else the masks.
+/// [`MeshConfig::hollow_search`]: where the images read a hollow behind the masks' mesh, the
+/// dark pixels' depth in `maps` is put that far behind it (the masks' mesh's own depth).
+fn carve_hollow(
+    inputs: &FusionInputs,
+    masks: &MasksAlone,
+    maps: &mut [Vec<f32>],
+    notes: &mut Vec<String>,
+) -> Result<()> {
+    let Some(radiance) = masks.images.as_ref() else {
+        notes.push("hollow search: the masks carry no images".into());
+        return Ok(());
+    };
+    let same = inputs.views.len() == masks.views.len()
+        && (inputs.views.iter().zip(&masks.views)).all(|(v, (c, _))| v.camera == c);
+    if !same {
+        notes.push("hollow search: the fusion views are not the masks' views".into());
+        return Ok(());
+    }
+    let t0 = std::time::Instant::now();
+    let images: Vec<ShadingImage> = (masks.views.iter().zip(radiance))
+        .map(|((camera, mask), radiance)| ShadingImage {
+            camera,
+            radiance,
+            mask: Some(mask),
+        })
+        .collect();
+    let borrowed = masks.borrowed();
+    let Some((lo, hi)) = crate::hull::hull_box(&borrowed)? else {
+        return Ok(());
+    };
+    let bound = crate::hull::masks_grid(&borrowed, lo, hi, masks.voxel)?;
+    let settings = crate::hollow::HollowSettings::default();
+    let reading = crate::hollow::read_hollow(&masks.mesh, &bound, &images, &settings)?;
+    let [flush, band, dark] = reading.pixels;
+    let Some((radius, depth)) = reading.pick else {
+        notes.push(format!(
+            "hollow search: none ({dark} dark pixels, {band} beside them, {flush} flush; {:.0} s)",
+            t0.elapsed().as_secs_f64()
+        ));
+        return Ok(());
+    };
+    let caster = MeshRaycaster::new(&masks.mesh, "the masks' mesh")?;
+    let cameras: Vec<&Camera> = masks.views.iter().map(|(c, _)| c).collect();
+    let lid: Vec<Vec<f32>> = cameras.iter().map(|c| caster.render(c).depth).collect();
+    let moved = crate::hollow::hollow_depths(&lid, &reading.dark, &cameras, depth);
+    for ((map, d), m) in maps.iter_mut().zip(&reading.dark).zip(&moved) {
+        for p in (0..map.len()).filter(|&p| d[p] && m[p] > 0.0) {
+            map[p] = m[p];
+        }
+    }
+    let lid_row = reading.candidates[0];
+    let best = (reading.candidates.iter())
+        .find(|c| (c.radius, c.depth) == (radius, depth))
+        .copied()
+        .unwrap_or(lid_row);
+    notes.push(format!(
+        "hollow search: capsules of {radius} fp to {depth} fp behind the masks' mesh read \
+         from {dark} dark pixels ({band} beside them, {flush} flush; grey material {:.2}, \
+         mean free path {:.3}; error {:.1} % against the lid's {:.1} %); their depth carves \
+         there ({:.0} s)",
+        reading.material.0,
+        reading.material.1,
+        best.total,
+        lid_row.total,
+        t0.elapsed().as_secs_f64()
+    ));
+    Ok(())
+}
+
 fn carving_bound<'a>(
     config: &MeshConfig,
     masks: &'a MasksAlone,

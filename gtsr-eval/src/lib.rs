@@ -16,6 +16,7 @@ pub mod consistency;
 pub mod depth;
 pub mod error;
 pub mod extraction;
+pub mod hollow;
 pub mod hull;
 pub mod marching;
 pub mod mesh;
@@ -37,6 +38,7 @@ pub use extraction::{
     DepthGeometry, EdgeHull, Fusion, FusionInputs, FusionView, MasksAlone, MeshConfig,
     OUTLINE_GAP_FOOTPRINTS, PlaneReadout, extract_mesh, prepare_depth,
 };
+pub use hollow::{HollowCandidate, HollowReading, HollowSettings, read_hollow};
 pub use hull::{
     EdgeProfile, coverage_to_distance, coverage_to_distance_with, edge_width, hull_slack,
     masks_mesh, visual_hull,

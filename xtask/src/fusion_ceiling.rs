@@ -126,6 +126,11 @@ pub struct FusionCeilingArgs {
     /// (`gtsr_eval::subsurface::SurfaceMap::gather_through`).
     #[arg(long)]
     pub dark_medium: bool,
+    /// With `--carve`: also carve with the masks' own depth and gtsr-train's hollow search
+    /// (`gtsr_eval::hollow`, the mesh setting `hollow_search`), which reads from the images
+    /// how deep the dark pixels' hollow runs (needs `--resolution` at the dataset's own).
+    #[arg(long)]
+    pub hollow_search: bool,
 }
 
 /// How near (in pixel footprints) a ground-truth face's centroid must lie to the first hit at
@@ -428,6 +433,7 @@ fn carve_rows(
         // The carving alone (with its shading check): the shading refinement that follows it
         // in gtsr-train reads the images, not the depth (`shading-stereo` measures it).
         shading_anchor: 0.0,
+        hollow_search: false,
         ..MeshConfig::default()
     };
     // Each carving's label and depth maps: the true depth with each bias, then the masks' own
@@ -712,7 +718,21 @@ fn carve_rows(
             ));
         }
     }
-    for (label, biased) in runs {
+    let mut hollow_runs = Vec::new();
+    if args.hollow_search {
+        let lid = MeshRaycaster::new(&hull, "masks' mesh")?;
+        hollow_runs.push((
+            "masks carved by their own depth, the hollow search's depth at the dark pixels (gtsr_eval::hollow)".to_string(),
+            prepared_depths(scene, &lid, args.keep_edges)?,
+        ));
+    }
+    let hollow_config = MeshConfig {
+        hollow_search: true,
+        ..config.clone()
+    };
+    let all = (runs.into_iter().map(|r| (r, &config)))
+        .chain(hollow_runs.into_iter().map(|r| (r, &hollow_config)));
+    for ((label, biased), config) in all {
         let t0 = Instant::now();
         let views: Vec<FusionView> = scene
             .train
@@ -733,7 +753,7 @@ fn carve_rows(
             bounds: (lo, hi),
             coarse: false,
         };
-        let (mesh, notes) = extract_mesh(&config, &inputs)?;
+        let (mesh, notes) = extract_mesh(config, &inputs)?;
         for note in &notes {
             println!("  {note}");
         }
