@@ -69,6 +69,9 @@ fn material(colour: [f32; 3], mfp: [f32; 3]) -> Material {
 /// criterion leaves it out: a candidate that changes the flush surface has cut through it.
 const FLUSH_GUARD: f64 = 1.0;
 
+/// A hollow's (mean free path scale, radius, depth, band L1 %, dark L1 %).
+type Fit = (f32, f32, f32, f64, f64);
+
 /// A pixel to render: view, pixel index, image radiance, class bits.
 #[derive(Clone, Copy)]
 struct Sample {
@@ -274,7 +277,7 @@ fn main() -> anyhow::Result<()> {
         .map(|(_, m)| Tracer::new(m, material_at(1.0)))
         .collect();
     // Per mean free path: (scale, radius, depth, band L1 %, dark L1 %) of each hollow kept.
-    let mut fits: Vec<(f32, f32, f32, f64, f64)> = Vec::new();
+    let mut fits: Vec<Fit> = Vec::new();
     for &mfp_scale in &mfp_scales {
         println!();
         println!("mean free path x{mfp_scale}:");
@@ -376,8 +379,8 @@ fn main() -> anyhow::Result<()> {
     // together (pixel-weighted), and over the band alone.
     if band_px > 0 {
         let (nb, nd) = (count(|s| s.band) as f64, count(|s| s.dark) as f64);
-        let joint = |f: &(f32, f32, f32, f64, f64)| (nb * f.3 + nd * f.4) / (nb + nd).max(1.0);
-        let best = |key: &dyn Fn(&(f32, f32, f32, f64, f64)) -> f64| {
+        let joint = |f: &Fit| (nb * f.3 + nd * f.4) / (nb + nd).max(1.0);
+        let best = |key: &dyn Fn(&Fit) -> f64| {
             fits.iter()
                 .min_by(|a, b| key(a).total_cmp(&key(b)))
                 .copied()

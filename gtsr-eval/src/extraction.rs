@@ -2311,6 +2311,9 @@ mod tests {
             carve_voxel: Some(0.03),
             shading_anchor: 0.0,
             carve_min_lid_departure: min_lid,
+            // The images here come from a shading model, not from light transport, which the
+            // hollow search's path tracer would read as a hollow at the dent's dark pixels.
+            hollow_search: false,
             ..MeshConfig::default()
         };
         let (mesh, notes) = sphere_extract(&masks, &maps, &config);
