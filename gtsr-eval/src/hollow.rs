@@ -397,7 +397,7 @@ fn pixel_samples(
                 Class::Dark
             } else if band[p] {
                 Class::Band
-            } else if (k * 7919 + p) % settings.flush_stride == 0 {
+            } else if (k * 7919 + p).is_multiple_of(settings.flush_stride) {
                 Class::Flush
             } else {
                 continue;
@@ -418,7 +418,7 @@ fn pixel_samples(
             return true;
         }
         seen += 1;
-        (seen - 1) % stride == 0
+        (seen - 1).is_multiple_of(stride)
     });
     out
 }
