@@ -40,7 +40,7 @@ use glam::{Vec2, Vec3};
 use gtsr_data::synthetic::material::Material;
 use gtsr_data::synthetic::rng::Rng;
 use gtsr_data::synthetic::tracer::{Lighting, Tracer};
-use gtsr_eval::hollow::{hollow_mesh, l1_gain};
+use gtsr_eval::hollow::{hollow_mesh, l1_gain, near_dark, random_walk_material as material};
 use gtsr_eval::scatter::unexplained_dark;
 use gtsr_eval::shading::{ShadingImage, view_radiance};
 use gtsr_eval::{DepthMap, MeshRaycaster};
@@ -53,16 +53,6 @@ mod common;
 /// albedo by Cycles' inversion, roughness 0.2, i.e. GGX alpha 0.04, IOR 1.45, isotropic).
 fn amber_material(mfp_scale: f32) -> Material {
     material([0.95, 0.65, 0.2], [0.5, 0.35, 0.1].map(|m| m * mfp_scale))
-}
-
-/// A Blender-style random-walk material: base colour (turned into a single-scattering albedo
-/// by Cycles' inversion) and mean free path per channel, amber_ingot's roughness and IOR.
-fn material(colour: [f32; 3], mfp: [f32; 3]) -> Material {
-    let albedo = colour.map(|a| {
-        let r = 4.09712 + 4.20863 * a - (9.59217 + 41.6808 * a + 17.7126 * a * a).sqrt();
-        1.0 - r * r
-    });
-    Material::from_mfp_albedo(mfp, albedo, 0.0, 1.45, 0.04)
 }
 
 /// How many points of flush L1 (%) a hollow may add to the masks' mesh's before the depth
@@ -156,7 +146,16 @@ fn main() -> anyhow::Result<()> {
         })
         .collect();
     let (_, dark) = unexplained_dark(&hull, &images, below)?;
-    let band = near_dark(&scene, &dark, band_px);
+    let band: Vec<Vec<bool>> = (scene.train.iter().zip(&dark))
+        .map(|(v, d)| {
+            near_dark(
+                d,
+                v.camera.width as usize,
+                v.camera.height as usize,
+                band_px,
+            )
+        })
+        .collect();
 
     // The pixels: every concave or dark one, and every 97th flush one for the gain.
     let mut samples = Vec::new();
@@ -225,10 +224,10 @@ fn main() -> anyhow::Result<()> {
         let base = gtsr_eval::hull::masks_grid(&masks, lo, hi, voxel)?;
         let lid_depths: Vec<_> = scene.train.iter().map(|v| lid.render(&v.camera)).collect();
         let to_hull = gtsr_eval::SignedDistance::new(&hull, "masks' mesh")?;
+        let cameras: Vec<&gtsr_data::Camera> = eyes.iter().collect();
         for &r in &radii {
             for &d in &depths {
                 let skin = if open { 0.0 } else { r + 1.0 };
-                let cameras: Vec<&gtsr_data::Camera> = eyes.iter().collect();
                 let mesh = hollow_mesh(&base, &cameras, &dark, &lid_depths, r, (skin, d));
                 let label = format!("hollow: capsules of {r} fp from {skin} to {d} fp");
                 // As extracted, and without the faces no training pixel shows that are off
@@ -398,31 +397,6 @@ fn main() -> anyhow::Result<()> {
         }
     }
     Ok(())
-}
-
-/// Per view, the pixels within `px` pixels (Chebyshev) of a dark one that are not dark.
-fn near_dark(scene: &gtsr_data::Scene, dark: &[Vec<bool>], px: usize) -> Vec<Vec<bool>> {
-    (scene.train.iter().zip(dark))
-        .map(|(v, d)| {
-            let (w, h) = (v.camera.width as usize, v.camera.height as usize);
-            let mut out = vec![false; w * h];
-            if px == 0 {
-                return out;
-            }
-            for p in (0..w * h).filter(|&p| d[p]) {
-                let (i, j) = (p % w, p / w);
-                for jj in j.saturating_sub(px)..(j + px + 1).min(h) {
-                    for ii in i.saturating_sub(px)..(i + px + 1).min(w) {
-                        out[ii + w * jj] = true;
-                    }
-                }
-            }
-            for (o, x) in out.iter_mut().zip(d) {
-                *o &= !x;
-            }
-            out
-        })
-        .collect()
 }
 
 /// Each sample's mean linear RGB over `spp` jittered paths through its pixel.

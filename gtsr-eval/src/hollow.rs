@@ -342,14 +342,41 @@ pub fn hollow_depths(
         .collect()
 }
 
-/// A grey Blender-style random-walk material: the base colour is turned into a
-/// single-scattering albedo by Cycles' inversion; a dielectric boundary of IOR 1.45 and GGX
-/// alpha 0.04, isotropic scattering.
+/// A Blender-style random-walk material: base colour (turned into a single-scattering albedo
+/// by Cycles' inversion) and mean free path per channel, a dielectric boundary of IOR 1.45
+/// and GGX alpha 0.04, isotropic scattering.
+pub fn random_walk_material(colour: [f32; 3], mfp: [f32; 3]) -> Material {
+    let albedo = colour.map(|a| {
+        let r = 4.09712 + 4.20863 * a - (9.59217 + 41.6808 * a + 17.7126 * a * a).sqrt();
+        1.0 - r * r
+    });
+    Material::from_mfp_albedo(mfp, albedo, 0.0, 1.45, 0.04)
+}
+
+/// [`random_walk_material`] in grey: one base colour and mean free path in every channel.
 fn grey(colour: f32, mfp: f32) -> Material {
-    let r = 4.09712 + 4.20863 * colour
-        - (9.59217 + 41.6808 * colour + 17.7126 * colour * colour).sqrt();
-    let albedo = 1.0 - r * r;
-    Material::from_mfp_albedo([mfp; 3], [albedo; 3], 0.0, 1.45, 0.04)
+    random_walk_material([colour; 3], [mfp; 3])
+}
+
+/// The pixels within `px` pixels (Chebyshev) of a dark one that are not dark themselves, in a
+/// `width` x `height` view.
+pub fn near_dark(dark: &[bool], width: usize, height: usize, px: usize) -> Vec<bool> {
+    let mut out = vec![false; width * height];
+    if px == 0 {
+        return out;
+    }
+    for p in (0..width * height).filter(|&p| dark[p]) {
+        let (i, j) = (p % width, p / width);
+        for jj in j.saturating_sub(px)..(j + px + 1).min(height) {
+            for ii in i.saturating_sub(px)..(i + px + 1).min(width) {
+                out[ii + width * jj] = true;
+            }
+        }
+    }
+    for (o, x) in out.iter_mut().zip(dark) {
+        *o &= !x;
+    }
+    out
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -379,16 +406,7 @@ fn pixel_samples(
     for (k, ((v, dm), d)) in images.iter().zip(lid).zip(dark).enumerate() {
         let (w, h) = (dm.width, dm.height);
         let edges = dm.occluding_edges(crate::depth::EDGE_FOOTPRINTS);
-        let mut band = vec![false; w * h];
-        let px = settings.band;
-        for p in (0..w * h).filter(|&p| d[p]) {
-            let (i, j) = (p % w, p / w);
-            for jj in j.saturating_sub(px)..(j + px + 1).min(h) {
-                for ii in i.saturating_sub(px)..(i + px + 1).min(w) {
-                    band[ii + w * jj] = true;
-                }
-            }
-        }
+        let band = near_dark(d, w, h, settings.band);
         for p in 0..w * h {
             if dm.depth[p] <= 0.0 || edges[p] || v.mask.is_some_and(|m| m[p] < 0.99) {
                 continue;
