@@ -36,9 +36,8 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 use gtsr_data::synthetic::material::Material;
-use gtsr_data::synthetic::rng::Rng;
 use gtsr_data::synthetic::tracer::{Lighting, Tracer};
 use gtsr_eval::hollow::{hollow_mesh, l1_gain, near_dark, random_walk_material as material};
 use gtsr_eval::scatter::unexplained_dark;
@@ -411,20 +410,16 @@ fn render(
         .par_iter()
         .map(|s| {
             let cam = &scene.train[s.view].camera;
-            let c2w = cam.camera_to_world();
-            let origin = Vec3::from(c2w.translation);
             let w = cam.width as usize;
-            let (i, j) = ((s.pixel % w) as f32, (s.pixel / w) as f32);
-            let mut rng = Rng::new(7, s.view as u64, s.pixel as u64, 0);
-            let shift = Vec2::new(rng.next_f32(), rng.next_f32());
-            let mut sum = Vec3::ZERO;
-            for n in 0..spp {
-                let o = (shift + Vec2::new(0.754_877_7, 0.569_840_3) * n as f32).fract();
-                let d = c2w
-                    .transform_vector3(cam.camera_direction(i + o.x, j + o.y))
-                    .normalize();
-                sum += tracer.sample_path(origin, d, origin, lighting, &mut rng).0;
-            }
+            let (sum, _) = tracer.pixel_sum(
+                cam,
+                s.pixel % w,
+                s.pixel / w,
+                lighting,
+                spp,
+                7,
+                s.view as u64,
+            );
             sum / spp.max(1) as f32
         })
         .collect()

@@ -203,29 +203,13 @@ impl Tracer {
         view_key: u64,
     ) -> Rendered {
         let (w, h) = (camera.width as usize, camera.height as usize);
-        let c2w = camera.camera_to_world();
-        let origin = Vec3::from(c2w.translation);
         let rows: Vec<(Vec<f32>, Vec<f32>)> = (0..h)
             .into_par_iter()
             .map(|j| {
                 let mut rgb = vec![0.0f32; 3 * w];
                 let mut alpha = vec![0.0f32; w];
                 for i in 0..w {
-                    let mut rng = Rng::new(seed, view_key, (j * w + i) as u64, 0);
-                    let shift = Vec2::new(rng.next_f32(), rng.next_f32());
-                    let mut sum = Vec3::ZERO;
-                    let mut hits = 0u32;
-                    for k in 0..spp {
-                        let s = (shift + Vec2::new(0.754_877_7, 0.569_840_3) * k as f32).fract();
-                        let dir = c2w
-                            .transform_vector3(
-                                camera.camera_direction(i as f32 + s.x, j as f32 + s.y),
-                            )
-                            .normalize();
-                        let (l, hit) = self.sample_path(origin, dir, origin, lighting, &mut rng);
-                        sum += l;
-                        hits += hit as u32;
-                    }
+                    let (sum, hits) = self.pixel_sum(camera, i, j, lighting, spp, seed, view_key);
                     let inv = 1.0 / spp.max(1) as f32;
                     rgb[3 * i..3 * i + 3].copy_from_slice(&(sum * inv).to_array());
                     alpha[i] = hits as f32 * inv;
@@ -244,6 +228,38 @@ impl Tracer {
             out.alpha.extend(a);
         }
         out
+    }
+
+    /// Pixel `(i, j)` of `camera` as [`Tracer::render`] renders it: the sum of `spp` paths'
+    /// radiance (R2 sub-pixel positions with the pixel's random shift, the pixel's own
+    /// stream keyed by `(seed, view_key, j * width + i)`) and how many hit the mesh.
+    #[allow(clippy::too_many_arguments)]
+    pub fn pixel_sum(
+        &self,
+        camera: &Camera,
+        i: usize,
+        j: usize,
+        lighting: Lighting,
+        spp: u32,
+        seed: u64,
+        view_key: u64,
+    ) -> (Vec3, u32) {
+        let c2w = camera.camera_to_world();
+        let origin = Vec3::from(c2w.translation);
+        let mut rng = Rng::new(seed, view_key, (j * camera.width as usize + i) as u64, 0);
+        let shift = Vec2::new(rng.next_f32(), rng.next_f32());
+        let mut sum = Vec3::ZERO;
+        let mut hits = 0u32;
+        for k in 0..spp {
+            let s = (shift + Vec2::new(0.754_877_7, 0.569_840_3) * k as f32).fract();
+            let dir = c2w
+                .transform_vector3(camera.camera_direction(i as f32 + s.x, j as f32 + s.y))
+                .normalize();
+            let (l, hit) = self.sample_path(origin, dir, origin, lighting, &mut rng);
+            sum += l;
+            hits += hit as u32;
+        }
+        (sum, hits)
     }
 
     /// Contribution of the point light at a boundary vertex.
