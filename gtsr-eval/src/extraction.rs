@@ -357,8 +357,10 @@ pub struct MeshConfig {
     pub edge_hull: bool,
     /// Carving: read a hollow behind the masks' lid from the images by path tracing
     /// ([`crate::hollow::read_hollow`], where the masks carry the images and the fusion views
-    /// are their size), and carve the dark pixels that far behind the lid. A scene without
-    /// dark pixels costs one scattering fit.
+    /// are their size), and carve the dark pixels that far behind the lid. The reading
+    /// depends on the masks and images alone, so a run searches once
+    /// ([`MasksAlone::hollow_reading`]) and every extraction along it uses the same. A scene
+    /// without dark pixels costs one scattering fit.
     #[arg(long = "hollow-search", id = "mesh.hollow_search", value_name = "BOOL",
           default_value_t = true, action = clap::ArgAction::Set)]
     pub hollow_search: bool,
@@ -648,6 +650,9 @@ pub struct MasksAlone {
     /// The hull from the masks' edges ([`MasksAlone::with_edge_distance`]); `None`: the
     /// extraction is bounded by [`MasksAlone::mesh`]'s field.
     pub edge_hull: Option<EdgeHull>,
+    /// [`MasksAlone::hollow_reading`] once read: it depends on the masks and the images only,
+    /// so every extraction of a run (and every clone of these masks) shares one search.
+    hollow: std::sync::Arc<std::sync::OnceLock<crate::hollow::HollowReading>>,
 }
 
 /// The visual hull of the masks read as distances to their edges
@@ -685,6 +690,7 @@ impl MasksAlone {
             radiance: None,
             images: None,
             edge_hull: None,
+            hollow: Default::default(),
         }))
     }
 
@@ -710,6 +716,8 @@ impl MasksAlone {
         }
         self.images = Some(radiance.clone());
         self.radiance = Some(radiance);
+        // Other images, another reading.
+        self.hollow = Default::default();
         Ok(self)
     }
 
@@ -818,6 +826,36 @@ impl MasksAlone {
     /// The mesh of [`MasksAlone::bound`].
     pub fn bound_mesh(&self) -> &TriMesh {
         self.edge_hull.as_ref().map_or(&self.mesh, |e| &e.mesh)
+    }
+
+    /// The hollow behind [`MasksAlone::mesh`] that [`MasksAlone::images`] read
+    /// ([`crate::hollow::read_hollow`] at its default settings, the bound being the masks'
+    /// field on this mesh's grid); `None` without images or when nothing lies inside every
+    /// mask. The search runs on the first call; later calls, on these masks or a clone of
+    /// them, return the same reading.
+    pub fn hollow_reading(&self) -> Result<Option<&crate::hollow::HollowReading>> {
+        if let Some(r) = self.hollow.get() {
+            return Ok(Some(r));
+        }
+        let Some(radiance) = self.images.as_ref() else {
+            return Ok(None);
+        };
+        let images: Vec<ShadingImage> = (self.views.iter().zip(radiance))
+            .map(|((camera, mask), radiance)| ShadingImage {
+                camera,
+                radiance,
+                mask: Some(mask),
+            })
+            .collect();
+        let borrowed = self.borrowed();
+        let Some((lo, hi)) = crate::hull::hull_box(&borrowed)? else {
+            return Ok(None);
+        };
+        let bound = crate::hull::masks_grid(&borrowed, lo, hi, self.voxel)?;
+        let settings = crate::hollow::HollowSettings::default();
+        let reading = crate::hollow::read_hollow(&self.mesh, &bound, &images, &settings)?;
+        // A reading another thread stored first is the same reading.
+        Ok(Some(self.hollow.get_or_init(|| reading)))
     }
 }
 
@@ -1016,7 +1054,7 @@ pub fn extract_mesh(config: &MeshConfig, inputs: &FusionInputs) -> Result<(TriMe
                 ));
             }
         }
-        if config.hollow_search && !inputs.coarse {
+        if config.hollow_search {
             carve_hollow(inputs, masks, &mut maps, &mut notes)?;
         }
         let mut mesh =
@@ -1169,8 +1207,6 @@ struct DepthFrom<'a> {
     threshold: f32,
 }
 
-/// The views and the mesh that bound the carving: the edge hull where the masks carry one
-/// and the settings ask for it, else the masks.
 /// [`MeshConfig::hollow_search`]: where the images read a hollow behind the masks' mesh, the
 /// dark pixels' depth in `maps` is put that far behind it (the masks' mesh's own depth).
 fn carve_hollow(
@@ -1179,36 +1215,29 @@ fn carve_hollow(
     maps: &mut [Vec<f32>],
     notes: &mut Vec<String>,
 ) -> Result<()> {
-    let Some(radiance) = masks.images.as_ref() else {
+    if masks.images.is_none() {
         notes.push("hollow search: the masks carry no images".into());
         return Ok(());
-    };
+    }
     let same = inputs.views.len() == masks.views.len()
         && (inputs.views.iter().zip(&masks.views)).all(|(v, (c, _))| v.camera == c);
     if !same {
         notes.push("hollow search: the fusion views are not the masks' views".into());
         return Ok(());
     }
-    let t0 = std::time::Instant::now();
-    let images: Vec<ShadingImage> = (masks.views.iter().zip(radiance))
-        .map(|((camera, mask), radiance)| ShadingImage {
-            camera,
-            radiance,
-            mask: Some(mask),
-        })
-        .collect();
-    let borrowed = masks.borrowed();
-    let Some((lo, hi)) = crate::hull::hull_box(&borrowed)? else {
+    let cached = masks.hollow.get().is_some();
+    let Some(reading) = masks.hollow_reading()? else {
         return Ok(());
     };
-    let bound = crate::hull::masks_grid(&borrowed, lo, hi, masks.voxel)?;
-    let settings = crate::hollow::HollowSettings::default();
-    let reading = crate::hollow::read_hollow(&masks.mesh, &bound, &images, &settings)?;
+    let when = if cached {
+        format!("read once, {:.0} s", reading.seconds)
+    } else {
+        format!("{:.0} s", reading.seconds)
+    };
     let [flush, band, dark] = reading.pixels;
     let Some((radius, depth)) = reading.pick else {
         notes.push(format!(
-            "hollow search: none ({dark} dark pixels, {band} beside them, {flush} flush; {:.0} s)",
-            t0.elapsed().as_secs_f64()
+            "hollow search: none ({dark} dark pixels, {band} beside them, {flush} flush; {when})"
         ));
         return Ok(());
     };
@@ -1230,16 +1259,14 @@ fn carve_hollow(
         "hollow search: capsules of {radius} fp to {depth} fp behind the masks' mesh read \
          from {dark} dark pixels ({band} beside them, {flush} flush; grey material {:.2}, \
          mean free path {:.3}; error {:.1} % against the lid's {:.1} %); their depth carves \
-         there ({:.0} s)",
-        reading.material.0,
-        reading.material.1,
-        best.total,
-        lid_row.total,
-        t0.elapsed().as_secs_f64()
+         there ({when})",
+        reading.material.0, reading.material.1, best.total, lid_row.total,
     ));
     Ok(())
 }
 
+/// The views and the mesh that bound the carving: the edge hull where the masks carry one
+/// and the settings ask for it, else the masks.
 fn carving_bound<'a>(
     config: &MeshConfig,
     masks: &'a MasksAlone,
@@ -2535,5 +2562,34 @@ mod tests {
         nan[0][9] = f32::NAN;
         let e = lit.with_rendered_radiance(&nan, 0.5).unwrap_err();
         assert!(e.to_string().contains("non-finite"), "{e}");
+    }
+
+    /// The hollow search runs once for a set of masks and images: a clone (a run's in-run and
+    /// final extractions) shares the reading, and other images make a new one.
+    #[test]
+    fn the_hollow_reading_is_shared_by_clones_and_renewed_with_the_images() {
+        let sphere = crate::mesh::icosphere(Vec3::ZERO, 0.5, 3);
+        let views = mesh_views(&sphere, 6, 24);
+        let masks = lit_masks(&views);
+        let first: *const _ = masks
+            .hollow_reading()
+            .unwrap()
+            .expect("the masks carry images");
+        let clone = masks.clone();
+        let again = clone.hollow_reading().unwrap().unwrap();
+        assert!(std::ptr::eq(first, again), "a clone reads the same search");
+        let brighter = (views.iter())
+            .map(|v| v.radiance.iter().map(|r| 2.0 * r).collect())
+            .collect();
+        let renewed = clone.with_radiance(brighter).unwrap();
+        let other = renewed.hollow_reading().unwrap().unwrap();
+        assert!(!std::ptr::eq(first, other), "new images, a new search");
+        let bare = MasksAlone::new(views.iter().map(|v| (v.camera, v.mask.clone())).collect())
+            .unwrap()
+            .unwrap();
+        assert!(
+            bare.hollow_reading().unwrap().is_none(),
+            "no images, no reading"
+        );
     }
 }

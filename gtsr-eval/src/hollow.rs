@@ -143,6 +143,8 @@ pub struct HollowReading {
     /// `(radius, depth)` in footprints of the hollow read, `None` when the lid explains the
     /// images best (or no pixel is dark).
     pub pick: Option<(f32, f32)>,
+    /// Wall time of the search, seconds.
+    pub seconds: f64,
 }
 
 /// Reads a hollow behind `lid` (the masks' mesh, extracted from `bound` at 0) from the images
@@ -154,6 +156,7 @@ pub fn read_hollow(
     settings: &HollowSettings,
 ) -> Result<HollowReading> {
     settings.validate()?;
+    let t0 = std::time::Instant::now();
     if images.is_empty() {
         return Err(EvalError::InvalidArgument(
             "hollow search: no images".into(),
@@ -168,11 +171,13 @@ pub fn read_hollow(
         material: (0.0, 0.0),
         candidates: Vec::new(),
         pick: None,
+        seconds: 0.0,
     };
     let samples = pixel_samples(images, &lid_depths, &dark, settings);
     let count = |c: Class| samples.iter().filter(|s| s.class == c).count();
     reading.pixels = [count(Class::Flush), count(Class::Band), count(Class::Dark)];
     if reading.pixels[2] == 0 || reading.pixels[0] == 0 {
+        reading.seconds = t0.elapsed().as_secs_f64();
         return Ok(reading);
     }
     let lighting = Lighting {
@@ -254,6 +259,7 @@ pub fn read_hollow(
         .filter(|c| c.kept && c.total.is_finite())
         .min_by(|a, b| a.total.total_cmp(&b.total));
     reading.pick = best.filter(|c| c.depth > 0.0).map(|c| (c.radius, c.depth));
+    reading.seconds = t0.elapsed().as_secs_f64();
     Ok(reading)
 }
 
