@@ -11,7 +11,9 @@
 //!    the flush sample below (least absolute error, each material with its gain of least
 //!    absolute error);
 //! 2. candidate hollows are cut into the masks' field: capsules of `radius` footprints along
-//!    the dark pixels' rays, from the lid to `depth` footprints behind it ([`hollow_mesh`]);
+//!    the dark pixels' rays, from the lid to `depth` footprints behind it ([`hollow_mesh`]),
+//!    each radius's depths in turn until its error has risen at
+//!    [`HollowSettings::patience`] depths in a row;
 //! 3. each candidate and the lid itself are path-traced at the dark pixels, at the pixels
 //!    within [`HollowSettings::band`] pixels of them (how fast the radiance falls towards the
 //!    gap tells the gap's width) and at the flush sample, all scaled by the lid's gain;
@@ -55,6 +57,9 @@ pub struct HollowSettings {
     pub flush_stride: usize,
     /// How many points of flush error (%) a candidate may add to the lid's.
     pub flush_guard: f64,
+    /// A radius's deeper hollows are not tried once its candidates' total error has risen
+    /// (or the flush guard refused one) at this many depths in a row; 0 tries every depth.
+    pub patience: usize,
     /// Grey base colours tried for the material.
     pub colours: Vec<f32>,
     /// Mean free paths tried for the material, in scene units.
@@ -74,6 +79,7 @@ impl Default for HollowSettings {
             spp: 64,
             flush_stride: 97,
             flush_guard: 1.0,
+            patience: 2,
             colours: vec![0.5, 0.7, 0.85, 0.95, 0.99],
             free_paths: vec![0.02, 0.05, 0.1, 0.2, 0.35, 0.5],
             seed: 7,
@@ -243,7 +249,11 @@ pub fn read_hollow(
     let (lid_row, gain) = assess(&base.with_material(material), None);
     reading.candidates.push(lid_row);
     for &radius in &settings.radii {
+        let (mut previous, mut rises) = (f64::INFINITY, 0usize);
         for &depth in &settings.depths {
+            if settings.patience > 0 && rises >= settings.patience {
+                break;
+            }
             let mesh = hollow_mesh(bound, &cameras, &dark, &lid_depths, radius, (0.0, depth));
             if mesh.triangles.is_empty() {
                 continue;
@@ -252,6 +262,12 @@ pub fn read_hollow(
             row.radius = radius;
             row.depth = depth;
             row.kept = row.flush <= lid_row.flush + settings.flush_guard;
+            rises = if !row.kept || row.total > previous {
+                rises + 1
+            } else {
+                0
+            };
+            previous = row.total;
             reading.candidates.push(row);
         }
     }
@@ -292,31 +308,46 @@ pub fn hollow_mesh(
         }
     }
     let mut grid = bound.clone();
+    // A capsule can only raise the field where `radius - distance` exceeds it, so each
+    // capsule visits the points within `radius - least` of its axis, not the whole slice.
+    let least = grid.values.iter().copied().fold(f32::INFINITY, f32::min);
     let [nx, ny, _] = grid.dims;
     let (origin, voxel) = (grid.origin, grid.voxel);
+    let index = |x: f32, n: usize| (x / voxel).clamp(0.0, (n - 1) as f32);
     grid.values
         .par_chunks_mut(nx * ny)
         .enumerate()
         .for_each(|(k, slice)| {
             let zk = origin.z + voxel * k as f32;
-            let near: Vec<_> = segments
-                .iter()
-                .filter(|(a, b, r)| zk >= a.z.min(b.z) - r && zk <= a.z.max(b.z) + r)
-                .collect();
-            if near.is_empty() {
-                return;
-            }
-            for jj in 0..ny {
-                for ii in 0..nx {
-                    let p = origin + voxel * Vec3::new(ii as f32, jj as f32, k as f32);
-                    let mut inside = f32::NEG_INFINITY;
-                    for (a, b, r) in &near {
-                        let ab = *b - *a;
+            for (a, b, r) in &segments {
+                if zk < a.z.min(b.z) - r || zk > a.z.max(b.z) + r {
+                    continue;
+                }
+                let reach = r - least;
+                let ab = *b - *a;
+                // The stretch of the axis within `reach` of this slice's plane, and the
+                // rectangle of points within `reach` of it.
+                let (t0, t1) = if ab.z.abs() > 1e-12 {
+                    let (u, v) = ((zk - reach - a.z) / ab.z, (zk + reach - a.z) / ab.z);
+                    (u.min(v).max(0.0), u.max(v).min(1.0))
+                } else {
+                    (0.0, 1.0)
+                };
+                let (p0, p1) = (*a + t0 * ab, *a + t1 * ab);
+                let lo = p0.min(p1) - Vec3::splat(reach) - origin;
+                let hi = p0.max(p1) + Vec3::splat(reach) - origin;
+                if t0 > t1 || hi.x < 0.0 || hi.y < 0.0 {
+                    continue;
+                }
+                let (i0, i1) = (index(lo.x, nx).floor(), index(hi.x, nx).ceil());
+                let (j0, j1) = (index(lo.y, ny).floor(), index(hi.y, ny).ceil());
+                for jj in j0 as usize..=j1 as usize {
+                    for ii in i0 as usize..=i1 as usize {
+                        let p = origin + voxel * Vec3::new(ii as f32, jj as f32, k as f32);
                         let t = ((p - *a).dot(ab) / ab.length_squared().max(1e-12)).clamp(0.0, 1.0);
-                        inside = inside.max(r - (p - (*a + t * ab)).length());
+                        let v = &mut slice[ii + nx * jj];
+                        *v = v.max(r - (p - (*a + t * ab)).length());
                     }
-                    let v = &mut slice[ii + nx * jj];
-                    *v = v.max(inside);
                 }
             }
         });
@@ -630,6 +661,76 @@ mod tests {
         assert!(
             h.dark < l.dark,
             "the hollow darkens the patch: {h:?} against {l:?}"
+        );
+    }
+
+    /// [`hollow_mesh`] visits only the points near each capsule, and gives the mesh of the
+    /// field that every point's distance to every capsule gives.
+    #[test]
+    fn a_hollow_mesh_is_the_field_cut_by_every_capsule() {
+        let (cameras, masks, _) = sphere_views();
+        let borrowed: Vec<(Camera, &[f32])> = (cameras.iter().zip(&masks))
+            .map(|(c, m)| (*c, m.as_slice()))
+            .collect();
+        let (lo, hi) = crate::hull::hull_box(&borrowed).unwrap().unwrap();
+        let bound = crate::hull::masks_grid(&borrowed, lo, hi, 0.02).unwrap();
+        let lid = largest_component(&marching_cubes(&bound, 0.0));
+        let caster = MeshRaycaster::new(&lid, "lid").unwrap();
+        let depths: Vec<MeshDepth> = cameras.iter().map(|c| caster.render(c)).collect();
+        // A dark block in two views, one of them off centre (oblique rays).
+        let mut dark = vec![vec![false; 24 * 24]; cameras.len()];
+        for p in [11 * 24 + 11, 11 * 24 + 12, 12 * 24 + 11, 12 * 24 + 12] {
+            dark[0][p] = true;
+            dark[2][p - 5 * 24 + 4] = true;
+        }
+        let refs: Vec<&Camera> = cameras.iter().collect();
+        let (radius, depth) = (1.5, 12.0);
+        let fast = hollow_mesh(&bound, &refs, &dark, &depths, radius, (0.0, depth));
+        // Every point against every capsule.
+        let mut segments = Vec::new();
+        for ((cam, flags), dm) in refs.iter().zip(&dark).zip(&depths) {
+            for p in (0..flags.len()).filter(|&p| flags[p]) {
+                let z = dm.depth[p];
+                let fp = z / dm.focal;
+                let (i, j) = ((p % dm.width) as f32 + 0.5, (p / dm.width) as f32 + 0.5);
+                let dir = cam.camera_direction(i, j);
+                let at = |zz: f32| cam.camera_to_world().transform_point3(dir * zz);
+                segments.push((at(z), at(z + depth * fp), radius * fp));
+            }
+        }
+        assert_eq!(segments.len(), 8);
+        let mut grid = bound.clone();
+        let [nx, ny, nz] = grid.dims;
+        for k in 0..nz {
+            for jj in 0..ny {
+                for ii in 0..nx {
+                    let p = grid.origin + grid.voxel * Vec3::new(ii as f32, jj as f32, k as f32);
+                    for (a, b, r) in &segments {
+                        if p.z < a.z.min(b.z) - r || p.z > a.z.max(b.z) + r {
+                            continue;
+                        }
+                        let ab = *b - *a;
+                        let t = ((p - *a).dot(ab) / ab.length_squared().max(1e-12)).clamp(0.0, 1.0);
+                        let v = &mut grid.values[ii + nx * (jj + ny * k)];
+                        *v = v.max(r - (p - (*a + t * ab)).length());
+                    }
+                }
+            }
+        }
+        let slow = largest_component(&marching_cubes(&grid, 0.0));
+        assert_ne!(
+            slow.positions.len(),
+            lid.positions.len(),
+            "the capsules cut the lid"
+        );
+        let moved = (fast.positions.iter().zip(&slow.positions))
+            .filter(|(a, b)| a != b)
+            .count();
+        assert!(
+            fast.triangles == slow.triangles && fast.positions == slow.positions,
+            "{} against {} triangles, {moved} vertices moved",
+            fast.triangles.len(),
+            slow.triangles.len()
         );
     }
 
