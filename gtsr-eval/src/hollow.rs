@@ -616,6 +616,17 @@ mod tests {
             .collect()
     }
 
+    /// The masks' field at a voxel of 0.02 and its mesh, the lid.
+    fn bound_and_lid(cameras: &[Camera], masks: &[Vec<f32>]) -> (Grid, TriMesh) {
+        let borrowed: Vec<(Camera, &[f32])> = (cameras.iter().zip(masks))
+            .map(|(c, m)| (*c, m.as_slice()))
+            .collect();
+        let (lo, hi) = crate::hull::hull_box(&borrowed).unwrap().unwrap();
+        let bound = crate::hull::masks_grid(&borrowed, lo, hi, 0.02).unwrap();
+        let lid = largest_component(&marching_cubes(&bound, 0.0));
+        (bound, lid)
+    }
+
     /// A quick search: few samples, one candidate.
     fn quick() -> HollowSettings {
         HollowSettings {
@@ -634,12 +645,7 @@ mod tests {
     #[test]
     fn a_hollow_is_read_only_where_the_images_are_dark() {
         let (cameras, masks, mut radiance) = sphere_views();
-        let borrowed: Vec<(Camera, &[f32])> = (cameras.iter().zip(&masks))
-            .map(|(c, m)| (*c, m.as_slice()))
-            .collect();
-        let (lo, hi) = crate::hull::hull_box(&borrowed).unwrap().unwrap();
-        let bound = crate::hull::masks_grid(&borrowed, lo, hi, 0.02).unwrap();
-        let lid = largest_component(&marching_cubes(&bound, 0.0));
+        let (bound, lid) = bound_and_lid(&cameras, &masks);
         let plain =
             read_hollow(&lid, &bound, &images(&cameras, &masks, &radiance), &quick()).unwrap();
         assert_eq!(plain.pixels[2], 0, "a uniform image is nowhere dark");
@@ -669,12 +675,7 @@ mod tests {
     #[test]
     fn a_hollow_mesh_is_the_field_cut_by_every_capsule() {
         let (cameras, masks, _) = sphere_views();
-        let borrowed: Vec<(Camera, &[f32])> = (cameras.iter().zip(&masks))
-            .map(|(c, m)| (*c, m.as_slice()))
-            .collect();
-        let (lo, hi) = crate::hull::hull_box(&borrowed).unwrap().unwrap();
-        let bound = crate::hull::masks_grid(&borrowed, lo, hi, 0.02).unwrap();
-        let lid = largest_component(&marching_cubes(&bound, 0.0));
+        let (bound, lid) = bound_and_lid(&cameras, &masks);
         let caster = MeshRaycaster::new(&lid, "lid").unwrap();
         let depths: Vec<MeshDepth> = cameras.iter().map(|c| caster.render(c)).collect();
         // A dark block in two views, one of them off centre (oblique rays).
