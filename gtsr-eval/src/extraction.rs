@@ -192,8 +192,8 @@ pub struct MeshConfig {
     /// vertex moves inward along its normal, held to where it was over this many of the masks'
     /// pixel footprints where its slack on the masks' hull reaches `--shading-slack`, and over
     /// `(slack / shading-slack)^4` of that where it is smaller (0: off). Only where the light
-    /// is at the camera (the PBR component's decision); the final mesh only, not the
-    /// evaluations during training.
+    /// is at the camera (the PBR component's decision). A coarse extraction (the evaluations
+    /// along a run) runs fewer rounds ([`MeshConfig::with_shading_rounds`]).
     #[arg(long = "shading-anchor", id = "mesh.shading_anchor", value_name = "FOOTPRINTS",
           default_value_t = DEFAULT_SHADING_ANCHOR, value_parser = parse_non_negative)]
     pub shading_anchor: f32,
