@@ -1236,8 +1236,18 @@ fn carve_hollow(
     };
     let [flush, band, dark] = reading.pixels;
     let Some((radius, depth)) = reading.pick else {
+        let why = match reading.best {
+            Some((r, d)) => format!(
+                "; the best hollow, {r} fp to {d} fp, takes {:.0} % of the lid's error off the \
+                 pixels beside the dark ones, under the {:.0} % asked",
+                100.0 * reading.band_share,
+                100.0 * crate::hollow::HollowSettings::default().min_band_share,
+            ),
+            None => String::new(),
+        };
         notes.push(format!(
-            "hollow search: none ({dark} dark pixels, {band} beside them, {flush} flush; {when})"
+            "hollow search: none ({dark} dark pixels, {band} beside them, {flush} flush{why}; \
+             {when})"
         ));
         return Ok(());
     };
@@ -1258,9 +1268,13 @@ fn carve_hollow(
     notes.push(format!(
         "hollow search: capsules of {radius} fp to {depth} fp behind the masks' mesh read \
          from {dark} dark pixels ({band} beside them, {flush} flush; grey material {:.2}, \
-         mean free path {:.3}; error {:.1} % against the lid's {:.1} %); their depth carves \
-         there ({when})",
-        reading.material.0, reading.material.1, best.total, lid_row.total,
+         mean free path {:.3}; error {:.1} % against the lid's {:.1} %, beside the dark \
+         pixels {:.0} % less); their depth carves there ({when})",
+        reading.material.0,
+        reading.material.1,
+        best.total,
+        lid_row.total,
+        100.0 * reading.band_share,
     ));
     Ok(())
 }
@@ -2338,8 +2352,9 @@ mod tests {
             carve_voxel: Some(0.03),
             shading_anchor: 0.0,
             carve_min_lid_departure: min_lid,
-            // The images here come from a shading model, not from light transport, which the
-            // hollow search's path tracer would read as a hollow at the dent's dark pixels.
+            // The images here come from a shading model, not from light transport; the hollow
+            // search reads no hollow from them (`a_shading_models_dark_pixels_read_no_hollow`)
+            // and is left out for time.
             hollow_search: false,
             ..MeshConfig::default()
         };
@@ -2437,6 +2452,28 @@ mod tests {
         assert_eq!(dug(Vec3::Y), 0, "{notes:?}");
     }
 
+    /// The masks and Lambertian images of 24 views at 64 px of a sphere of radius 0.8 with a
+    /// dent 6 half footprints deep at -Y, and the views.
+    fn lambert_dent() -> (MasksAlone, Vec<MeshView>) {
+        let footprint = 0.5 * sphere_footprint_32();
+        let views = mesh_views(&dented_sphere(0.8, 6.0 * footprint, &[Vec3::NEG_Y]), 24, 64);
+        (lit_masks(&views), views)
+    }
+
+    /// A dented sphere's images from a shading model (Lambert's, not light transport): the
+    /// dent's darkest pixels make the path-traced search rank a hollow above the lid, which
+    /// explains little of the pixels beside them, and the band test refuses it.
+    #[test]
+    fn a_shading_models_dark_pixels_read_no_hollow() {
+        let (masks, _) = lambert_dent();
+        let reading = masks.hollow_reading().unwrap().expect("images");
+        assert!(reading.pixels[2] > 0, "{:?}", reading.pixels);
+        assert!(reading.best.is_some(), "{:?}", reading.candidates);
+        let least = crate::hollow::HollowSettings::default().min_band_share;
+        assert!(reading.band_share < least, "{}", reading.band_share);
+        assert_eq!(reading.pick, None);
+    }
+
     /// A quicker extraction (`coarse`, an evaluation during training) still refines the mesh
     /// by the shading, in the rounds its settings ask ([`MeshConfig::with_shading_rounds`]),
     /// and leaves the carved bound as it is with none: on a dented sphere's Lambertian images
@@ -2445,12 +2482,7 @@ mod tests {
     fn a_coarse_extraction_refines_by_the_shading_in_its_rounds() {
         let (radius, size) = (0.8, 64);
         let footprint = 0.5 * sphere_footprint_32();
-        let views = mesh_views(
-            &dented_sphere(radius, 6.0 * footprint, &[Vec3::NEG_Y]),
-            24,
-            size,
-        );
-        let masks = lit_masks(&views);
+        let (masks, views) = lambert_dent();
         // No depth: nothing is carved (the bound is remeshed on the carving's grid), and the
         // refinement alone moves it.
         let empty = vec![vec![0.0f32; (size * size) as usize]; views.len()];
@@ -2458,8 +2490,8 @@ mod tests {
             |config: &MeshConfig| sphere_try_extract_as(&masks, &empty, config, true).unwrap();
         let config = MeshConfig {
             carve_voxel: Some(0.03),
-            // Lambertian images, which the hollow search's path tracer would read as a hollow
-            // at the dent's dark pixels and carve: here only the refinement may move the mesh.
+            // Lambertian images, from which the hollow search reads no hollow
+            // (`a_shading_models_dark_pixels_read_no_hollow`): left out for time.
             hollow_search: false,
             ..MeshConfig::default()
         };

@@ -20,7 +20,13 @@
 //! 4. the candidate of least absolute error over every pixel rendered is the reading, among
 //!    those that keep the flush sample within [`HollowSettings::flush_guard`] points of the
 //!    lid's error (a candidate that changes the flush surface has cut through the object).
-//!    When the lid itself is best, there is no hollow.
+//!    When the lid itself is best, there is no hollow;
+//! 5. the reading stands only when its hollow also takes [`HollowSettings::min_band_share`]
+//!    of the lid's error off the band. Any hole cut under the dark pixels darkens them; a real
+//!    gap also darkens the pixels beside it, as light that would have reached them leaks into
+//!    the gap, and the band's fall-off is that evidence. Images that no light transport made
+//!    (a shading model's, a painted patch) can have dark pixels whose neighbours the lid
+//!    already explains: a hollow fitted to them is refused.
 //!
 //! The carving of [`crate::extract_mesh`] then puts the dark pixels' depth that far behind
 //! the lid ([`MeshConfig::hollow_search`](crate::MeshConfig::hollow_search)).
@@ -60,6 +66,9 @@ pub struct HollowSettings {
     /// A radius's deeper hollows are not tried once its candidates' total error has risen
     /// (or the flush guard refused one) at this many depths in a row; 0 tries every depth.
     pub patience: usize,
+    /// The least share (0 to 1) of the lid's error over the band that the best candidate must
+    /// take off for the reading to stand; 0 accepts any candidate the lid does not beat.
+    pub min_band_share: f64,
     /// Grey base colours tried for the material.
     pub colours: Vec<f32>,
     /// Mean free paths tried for the material, in scene units.
@@ -80,6 +89,7 @@ impl Default for HollowSettings {
             flush_stride: 97,
             flush_guard: 1.0,
             patience: 2,
+            min_band_share: 0.25,
             colours: vec![0.5, 0.7, 0.85, 0.95, 0.99],
             free_paths: vec![0.02, 0.05, 0.1, 0.2, 0.35, 0.5],
             seed: 7,
@@ -101,13 +111,15 @@ impl HollowSettings {
             && self.flush_stride > 0
             && self.max_band > 0
             && self.flush_guard.is_finite()
-            && self.flush_guard >= 0.0;
+            && self.flush_guard >= 0.0
+            && (0.0..=1.0).contains(&self.min_band_share);
         if ok {
             Ok(())
         } else {
             Err(EvalError::InvalidArgument(format!(
                 "hollow search: invalid settings {self:?} (positive radii, depths, mean free \
-                 paths and share; base colours in [0, 1); spp, stride and band cap at least 1)"
+                 paths and share; base colours in [0, 1); band share in [0, 1]; spp, stride and \
+                 band cap at least 1)"
             )))
         }
     }
@@ -147,8 +159,13 @@ pub struct HollowReading {
     /// The lid, then every candidate tried.
     pub candidates: Vec<HollowCandidate>,
     /// `(radius, depth)` in footprints of the hollow read, `None` when the lid explains the
-    /// images best (or no pixel is dark).
+    /// images best, no pixel is dark, or the best hollow fails the band test
+    /// ([`HollowSettings::min_band_share`]).
     pub pick: Option<(f32, f32)>,
+    /// The candidate of least error the lid does not beat, before the band test.
+    pub best: Option<(f32, f32)>,
+    /// The share of the lid's error over the band that `best` takes off.
+    pub band_share: f64,
     /// Wall time of the search, seconds.
     pub seconds: f64,
 }
@@ -177,6 +194,8 @@ pub fn read_hollow(
         material: (0.0, 0.0),
         candidates: Vec::new(),
         pick: None,
+        best: None,
+        band_share: 0.0,
         seconds: 0.0,
     };
     let samples = pixel_samples(images, &lid_depths, &dark, settings);
@@ -274,7 +293,17 @@ pub fn read_hollow(
     let best = (reading.candidates.iter())
         .filter(|c| c.kept && c.total.is_finite())
         .min_by(|a, b| a.total.total_cmp(&b.total));
-    reading.pick = best.filter(|c| c.depth > 0.0).map(|c| (c.radius, c.depth));
+    if let Some(best) = best.filter(|c| c.depth > 0.0) {
+        reading.best = Some((best.radius, best.depth));
+        reading.band_share = if lid_row.band > 0.0 {
+            1.0 - best.band / lid_row.band
+        } else {
+            0.0
+        };
+        if settings.min_band_share <= 0.0 || reading.band_share >= settings.min_band_share {
+            reading.pick = reading.best;
+        }
+    }
     reading.seconds = t0.elapsed().as_secs_f64();
     Ok(reading)
 }
@@ -571,6 +600,14 @@ mod tests {
                 spp: 0,
                 ..HollowSettings::default()
             },
+            HollowSettings {
+                min_band_share: 1.5,
+                ..HollowSettings::default()
+            },
+            HollowSettings {
+                min_band_share: f64::NAN,
+                ..HollowSettings::default()
+            },
         ] {
             let e = bad.validate().unwrap_err().to_string();
             assert!(e.contains("hollow search"), "{e}");
@@ -668,6 +705,35 @@ mod tests {
             h.dark < l.dark,
             "the hollow darkens the patch: {h:?} against {l:?}"
         );
+    }
+
+    /// A nearly black patch painted on images whose every other pixel the lid explains: the
+    /// hollow cut under it beats the lid on the dark pixels and in total, but leaves the
+    /// pixels beside them no better explained (a real gap darkens them too), so the band
+    /// test refuses it; with the test off it is read.
+    #[test]
+    fn a_hollow_that_leaves_the_band_unexplained_is_refused() {
+        let (cameras, masks, mut radiance) = sphere_views();
+        let (bound, lid) = bound_and_lid(&cameras, &masks);
+        for p in [11 * 24 + 11, 11 * 24 + 12, 12 * 24 + 11, 12 * 24 + 12] {
+            radiance[0][p] = 0.05;
+        }
+        let read = |settings: &HollowSettings| {
+            read_hollow(&lid, &bound, &images(&cameras, &masks, &radiance), settings).unwrap()
+        };
+        let off = read(&HollowSettings {
+            min_band_share: 0.0,
+            ..quick()
+        });
+        let (l, h) = (off.candidates[0], off.candidates[1]);
+        assert!(h.total < l.total && h.dark < l.dark, "{h:?} against {l:?}");
+        assert!(h.band >= 0.9 * l.band, "{h:?} against {l:?}");
+        assert_eq!(off.pick, Some((1.5, 12.0)));
+        let on = read(&quick());
+        assert_eq!(on.best, Some((1.5, 12.0)));
+        assert!(on.band_share < quick().min_band_share, "{}", on.band_share);
+        assert_eq!(on.pick, None);
+        assert_eq!(on.candidates, off.candidates);
     }
 
     /// [`hollow_mesh`] visits only the points near each capsule, and gives the mesh of the
