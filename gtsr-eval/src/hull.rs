@@ -465,14 +465,21 @@ pub const MASKS_VOXEL_FOOTPRINTS: f32 = 0.75;
 /// resolution: small masks have large footprints, and thin parts need the grid.
 pub const MASKS_VOXEL_RADIUS_DIVISOR: f32 = 128.0;
 
+/// Pixel footprints in the finest voxel of [`masks_mesh`]: the radius cap stops here on small
+/// masks, where a finer grid only multiplies the triangles (the bilinear masks are placed
+/// alike from a sixth of a footprint down).
+pub const MASKS_VOXEL_MIN_FOOTPRINTS: f32 = 1.0 / 6.0;
+
 /// The grid spacing of [`masks_mesh`] for the box `[lo, hi]`: [`MASKS_VOXEL_FOOTPRINTS`] of
 /// the masks' median pixel footprint at its centre, at most the box radius over
-/// [`MASKS_VOXEL_RADIUS_DIVISOR`].
+/// [`MASKS_VOXEL_RADIUS_DIVISOR`], at least [`MASKS_VOXEL_MIN_FOOTPRINTS`] of the footprint.
 pub fn masks_voxel(views: &[(Camera, &[f32])], lo: Vec3, hi: Vec3) -> f32 {
     let footprint =
         crate::tsdf::median_pixel_footprint(views.iter().map(|(c, _)| c), 0.5 * (lo + hi));
     let radius = 0.5 * (hi - lo).max_element();
-    (MASKS_VOXEL_FOOTPRINTS * footprint).min(radius / MASKS_VOXEL_RADIUS_DIVISOR)
+    (MASKS_VOXEL_FOOTPRINTS * footprint)
+        .min(radius / MASKS_VOXEL_RADIUS_DIVISOR)
+        .max(MASKS_VOXEL_MIN_FOOTPRINTS * footprint)
 }
 
 /// The masks alone, done well: the surface where the bilinearly interpolated masks cross 0.5
@@ -795,5 +802,27 @@ mod coverage_tests {
         nan[3] = f32::NAN;
         let e = coverage_to_distance(&nan, 4, 3).unwrap_err();
         assert!(e.to_string().contains("non-finite"), "{e}");
+    }
+
+    /// The masks' voxel: three quarters of a footprint on large masks, the box radius over 128
+    /// on middling ones, a sixth of a footprint on small ones.
+    #[test]
+    fn the_masks_voxel_follows_the_footprint_within_its_bounds() {
+        let (lo, hi) = (Vec3::splat(-1.0), Vec3::splat(1.0));
+        let voxel = |px: u32| {
+            let cam = Camera::look_at(Vec3::new(0.0, 0.0, 4.0), Vec3::ZERO, Vec3::Y, 0.7, px, px);
+            let mask = vec![1.0f32; (px * px) as usize];
+            let fp = crate::tsdf::median_pixel_footprint([&cam], Vec3::ZERO);
+            (masks_voxel(&[(cam, &mask)], lo, hi), fp)
+        };
+        let (v, fp) = voxel(1024);
+        assert!(0.75 * fp < 1.0 / 128.0, "{fp}");
+        assert!((v - 0.75 * fp).abs() < 1e-7, "{v} {fp}");
+        let (v, fp) = voxel(128);
+        assert!(0.75 * fp > 1.0 / 128.0 && fp / 6.0 < 1.0 / 128.0, "{fp}");
+        assert!((v - 1.0 / 128.0).abs() < 1e-7, "{v} {fp}");
+        let (v, fp) = voxel(24);
+        assert!(fp / 6.0 > 1.0 / 128.0, "{fp}");
+        assert!((v - fp / 6.0).abs() < 1e-7, "{v} {fp}");
     }
 }
