@@ -42,20 +42,7 @@ fn main() -> anyhow::Result<()> {
     let mut blind_dist = [0f64; BINS.len()];
     for p in &samples.points {
         let d = to_hull.query(*p).0.abs();
-        let views = scene
-            .train
-            .iter()
-            .zip(&maps)
-            .filter(|(v, m)| {
-                v.camera.project(*p).is_some_and(|(uv, z)| {
-                    let (i, j) = (uv.x.floor(), uv.y.floor());
-                    i >= 0.0 && j >= 0.0 && (i as usize) < m.width && (j as usize) < m.height && {
-                        let hit = m.depth[j as usize * m.width + i as usize];
-                        hit > 0.0 && (hit - z).abs() < 0.011
-                    }
-                })
-            })
-            .count();
+        let views = common::views_showing(&scene, &maps, *p);
         let b = BINS.iter().rposition(|t| views >= *t).unwrap_or(0);
         if d > 0.01 {
             if let (Some(f), true) = (dump.as_mut(), views > 0) {

@@ -3,8 +3,10 @@
 
 use std::path::Path;
 
+use glam::Vec3;
 use gtsr_data::ply::TriMesh;
 use gtsr_data::{Camera, Downscale, LoadOptions, Scene, load_scene};
+use gtsr_eval::MeshDepth;
 
 /// A development scene loaded at the dataset's resolution, with the masks' mesh (sub-voxel,
 /// `gtsr_eval::masks_mesh`) and the ground truth (`mesh.ply`).
@@ -43,4 +45,21 @@ pub fn masks(scene: &Scene) -> anyhow::Result<Vec<(Camera, &[f32])>> {
                 .ok_or_else(|| anyhow::anyhow!("view {} has no mask", v.name))
         })
         .collect()
+}
+
+/// In how many training views the ground truth's own first hit (`maps`, the ground truth ray
+/// cast from each view at the dataset's resolution) at `p`'s pixel lies within 0.011 of `p`.
+#[allow(dead_code)] // Each example compiles this module; not all of them ask for visibility.
+pub fn views_showing(scene: &Scene, maps: &[MeshDepth], p: Vec3) -> usize {
+    (scene.train.iter().zip(maps))
+        .filter(|(v, m)| {
+            v.camera.project(p).is_some_and(|(uv, z)| {
+                let (i, j) = (uv.x.floor(), uv.y.floor());
+                i >= 0.0 && j >= 0.0 && (i as usize) < m.width && (j as usize) < m.height && {
+                    let hit = m.depth[j as usize * m.width + i as usize];
+                    hit > 0.0 && (hit - z).abs() < 0.011
+                }
+            })
+        })
+        .count()
 }
