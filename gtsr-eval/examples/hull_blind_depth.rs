@@ -14,7 +14,7 @@
 
 use std::path::PathBuf;
 
-use gtsr_eval::{MeshRaycaster, SignedDistance, sample_surface};
+use gtsr_eval::{SignedDistance, sample_surface};
 
 mod common;
 
@@ -40,12 +40,7 @@ fn main() -> anyhow::Result<()> {
         .map(|(m, p)| SignedDistance::new(m, p).map_err(anyhow::Error::from))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let to_hull = SignedDistance::new(&hull, "masks' mesh")?;
-    let caster = MeshRaycaster::new(&gt, "ground truth")?;
-    let maps: Vec<_> = scene
-        .train
-        .iter()
-        .map(|v| caster.render(&v.camera))
-        .collect();
+    let maps = common::truth_maps(&scene, &gt)?;
     let samples = sample_surface(&gt, 100_000, 1, "ground truth")?;
     let bins = EDGES.len() - 1;
     let (mut count, mut to_hull_sum) = (vec![0usize; bins], vec![0f64; bins]);

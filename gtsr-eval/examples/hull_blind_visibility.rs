@@ -12,7 +12,7 @@
 
 use std::path::PathBuf;
 
-use gtsr_eval::{MeshRaycaster, SignedDistance, sample_surface};
+use gtsr_eval::{SignedDistance, sample_surface};
 
 mod common;
 
@@ -26,12 +26,7 @@ fn main() -> anyhow::Result<()> {
         .into();
     let common::DevScene { scene, hull, gt } = common::load(&dir)?;
     let to_hull = SignedDistance::new(&hull, "masks' mesh")?;
-    let caster = MeshRaycaster::new(&gt, "ground truth")?;
-    let maps: Vec<_> = scene
-        .train
-        .iter()
-        .map(|v| caster.render(&v.camera))
-        .collect();
+    let maps = common::truth_maps(&scene, &gt)?;
     let samples = sample_surface(&gt, 20_000, 1, "ground truth")?;
     // Optionally, the hull-blind samples some view shows, as `x,y,z,distance,views` lines.
     let mut dump = match std::env::args().nth(2) {

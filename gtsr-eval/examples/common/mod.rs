@@ -47,6 +47,17 @@ pub fn masks(scene: &Scene) -> anyhow::Result<Vec<(Camera, &[f32])>> {
         .collect()
 }
 
+/// The ground truth ray cast from every training view at the dataset's resolution.
+#[allow(dead_code)] // Each example compiles this module; not all of them ask for these maps.
+pub fn truth_maps(scene: &Scene, gt: &TriMesh) -> anyhow::Result<Vec<MeshDepth>> {
+    let caster = gtsr_eval::MeshRaycaster::new(gt, "ground truth")?;
+    Ok(scene
+        .train
+        .iter()
+        .map(|v| caster.render(&v.camera))
+        .collect())
+}
+
 /// In how many training views the ground truth's own first hit (`maps`, the ground truth ray
 /// cast from each view at the dataset's resolution) at `p`'s pixel lies within 0.011 of `p`.
 #[allow(dead_code)] // Each example compiles this module; not all of them ask for visibility.
