@@ -246,13 +246,92 @@ fn the_slot_is_outside_the_shape_but_inside_every_silhouette() {
     }
 }
 
-/// The hidden part of each shape with one is exactly what no silhouette sees: the slot's floor
-/// and walls (their area to float precision), the dent's cap (to its mesh's facets);
-/// the shapes without one have none.
+/// The capped well's gap and the hollow under its cap are empty, and no silhouette sees
+/// them: every ray through them from outside the bounding sphere hits the shape. The cap
+/// and the block are apart: the gap runs all the way round.
 #[test]
-fn the_hidden_part_is_the_slot_and_the_dent() {
+fn the_hollow_under_the_cap_is_outside_the_shape_but_inside_every_silhouette() {
+    use gtsr_data::synthetic::shapes::{CAP_DIP, WELL_BLOCK, WELL_GAP, WELL_RADIUS, well_rotation};
+    let shape = ShapeKind::CappedWell;
+    let turn = well_rotation();
+    let top = WELL_BLOCK.2;
+    let mut rng = gtsr_data::synthetic::rng::Rng::new(13, 0, 0, 0);
+    let mut uniform = || Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+    let mut points = Vec::new();
+    // In the gap: between the cap's sphere and the well's, below the block's top.
+    for k in 0..200 {
+        let a = std::f32::consts::TAU * k as f32 / 200.0;
+        let r = WELL_RADIUS - WELL_GAP * (0.1 + 0.8 * (k % 7) as f32 / 6.0);
+        let polar = std::f32::consts::FRAC_PI_2 + 0.3 * (k % 5) as f32 / 4.0 + 0.05;
+        points.push(Vec3::new(
+            r * polar.sin() * a.cos(),
+            r * polar.sin() * a.sin(),
+            top + r * polar.cos(),
+        ));
+    }
+    // In the hollow: under the cap's bottom, inside the well.
+    for _ in 0..200 {
+        let u = uniform();
+        let a = std::f32::consts::TAU * u.x;
+        let z = top - CAP_DIP - 0.01 - u.y * (WELL_RADIUS - CAP_DIP - 0.03);
+        let rim = (WELL_RADIUS * WELL_RADIUS - (z - top) * (z - top)).sqrt();
+        let r = rim * 0.95 * u.z.sqrt();
+        points.push(Vec3::new(r * a.cos(), r * a.sin(), z));
+    }
+    for q in points {
+        let p = turn * q;
+        assert!(!shape.contains(p), "{q}: the well should be empty there");
+        for _ in 0..20 {
+            let d = (uniform() * 2.0 - 1.0).normalize();
+            assert!(
+                shape.ray_hits(p - 4.0 * d, d),
+                "a ray along {d} through {q} misses"
+            );
+        }
+    }
+    // Solid: the cap just inside its sphere and above its bottom, the block just under the
+    // well and beside its rim.
+    let cap = WELL_RADIUS - WELL_GAP;
+    for q in [
+        Vec3::new(0.0, 0.0, top + cap - 0.01),
+        Vec3::new(0.0, 0.0, top - CAP_DIP + 0.01),
+        Vec3::new(0.0, 0.0, top - WELL_RADIUS - 0.01),
+        Vec3::new(WELL_RADIUS + 0.01, 0.0, top - 0.01),
+    ] {
+        assert!(shape.contains(turn * q), "{q}");
+    }
+    // The mesh: every vertex lies on the block's faces, on the well's sphere or on the cap's
+    // sphere or bottom, and both spheres carry vertices all the way round.
+    let (radius, bottom, _) = WELL_BLOCK;
+    let floor = top - CAP_DIP;
+    let near = |a: f32, b: f32| (a - b).abs() < 1e-4;
+    let (mut on_cap, mut on_well) = (0, 0);
+    for &p in &shape.mesh().positions {
+        let q = turn.inverse() * p;
+        let (r, from_centre) = (q.truncate().length(), (q - Vec3::Z * top).length());
+        let block = (near(r, radius) && q.z >= bottom - 1e-4 && q.z <= top + 1e-4)
+            || ((near(q.z, top) || near(q.z, bottom)) && r <= radius + 1e-4);
+        let well = near(from_centre, WELL_RADIUS) && q.z <= top + 1e-4;
+        let cap_side = near(from_centre, cap) && q.z >= floor - 1e-4;
+        let cap_bottom = near(q.z, floor) && r <= cap + 1e-4;
+        on_well += well as usize;
+        on_cap += cap_side as usize;
+        assert!(block || well || cap_side || cap_bottom, "{q}");
+    }
+    assert!(
+        on_cap > 1000 && on_well > 1000,
+        "{on_cap} cap and {on_well} well vertices"
+    );
+}
+
+/// The hidden part of each shape with one is exactly what no silhouette sees: the slot's floor
+/// and walls (their area to float precision), the dent's cap, the well and the cap's part in
+/// it (to their meshes' facets); the shapes without one have none.
+#[test]
+fn the_hidden_part_is_the_slot_the_dent_and_the_well() {
     use gtsr_data::synthetic::shapes::{
-        CUBE_HALF, DENT_CENTRE, DENT_RADIUS, SLOT_DEPTH, SLOT_WIDTH, slot_box,
+        CAP_DIP, CUBE_HALF, DENT_CENTRE, DENT_RADIUS, SLOT_DEPTH, SLOT_WIDTH, WELL_GAP,
+        WELL_RADIUS, slot_box,
     };
     let area = |m: &gtsr_data::ply::TriMesh| -> f64 {
         (m.triangles.iter())
@@ -277,6 +356,17 @@ fn the_hidden_part_is_the_slot_and_the_dent() {
                 let (c, r) = (f64::from(DENT_CENTRE), f64::from(DENT_RADIUS));
                 let a = (c * c + 1.0 - r * r) / (2.0 * c);
                 std::f64::consts::TAU * r * (r - (c - a))
+            }
+            ShapeKind::CappedWell => {
+                // The hemispherical well, the cap's spherical zone below the block's top and
+                // its flat bottom.
+                let (w, cap, dip) = (
+                    f64::from(WELL_RADIUS),
+                    f64::from(WELL_RADIUS - WELL_GAP),
+                    f64::from(CAP_DIP),
+                );
+                let tau = std::f64::consts::TAU;
+                tau * w * w + tau * cap * dip + 0.5 * tau * (cap * cap - dip * dip)
             }
             _ => {
                 assert!(part.is_none(), "{shape} has no hidden part");

@@ -20,6 +20,10 @@
 //! * [`ShapeKind::SlottedCube`]: that cube with a narrow closed slot ([`slot_box`]) sunk into
 //!   one face: a trench [`SLOT_WIDTH`] across and [`SLOT_DEPTH`] deep that no silhouette
 //!   sees, only the views that look down into it.
+//! * [`ShapeKind::CappedWell`]: a round block with a hemispherical well in its top, and a
+//!   domed cap in the well, free of it: a ring gap [`WELL_GAP`] wide opens onto the hollow
+//!   between the cap's flat bottom and the well, which no silhouette sees; a solid of
+//!   revolution, its axis turned obliquely ([`well_rotation`]).
 
 use std::collections::HashMap;
 use std::f32::consts::TAU;
@@ -46,6 +50,8 @@ pub enum ShapeKind {
     Cube,
     /// The oblique cube with a narrow slot sunk into one face, hidden from every silhouette.
     SlottedCube,
+    /// A block with a well, and a cap resting free in it over a hollow no silhouette sees.
+    CappedWell,
 }
 
 /// Torus major radius.
@@ -80,6 +86,24 @@ pub const SLOT_DEPTH: f32 = 0.25;
 pub const SLOT_WIDTH: f32 =
     (SLOT_CELLS.1[1] - SLOT_CELLS.1[0]) as f32 * 2.0 * CUBE_HALF / SLOT_GRID as f32;
 
+/// The capped well's block: radius, bottom and top (its farthest corner on the unit sphere).
+pub const WELL_BLOCK: (f32, f32, f32) = (0.8, -0.6, 0.1);
+/// Radius of the hemispherical well, centred on the block's top face.
+pub const WELL_RADIUS: f32 = 0.35;
+/// The ring gap between the cap and the well (the cap's sphere is the well's, this much
+/// smaller): two pixels of a 128 px view of the scene at distance 4.
+pub const WELL_GAP: f32 = 0.05;
+/// How far the cap's flat bottom lies below the block's top face.
+pub const CAP_DIP: f32 = 0.12;
+/// Azimuthal segments of the capped well's mesh.
+const WELL_AROUND: u32 = 256;
+
+/// The capped well's orientation: its axis (z in its own frame) turned away from the
+/// cameras' axes.
+pub fn well_rotation() -> glam::Quat {
+    glam::Quat::from_euler(glam::EulerRot::ZXY, 0.3, 0.25, -0.15)
+}
+
 /// The slot of [`ShapeKind::SlottedCube`] as a box in the cube's own frame (before
 /// [`cube_rotation`]): its opening lies in the face `z = CUBE_HALF`. Returns its lower and
 /// upper corners.
@@ -100,7 +124,7 @@ pub fn cube_rotation() -> glam::Quat {
 
 impl ShapeKind {
     /// Every shape.
-    pub const ALL: [ShapeKind; 7] = [
+    pub const ALL: [ShapeKind; 8] = [
         ShapeKind::Sphere,
         ShapeKind::Torus,
         ShapeKind::Bear,
@@ -108,6 +132,7 @@ impl ShapeKind {
         ShapeKind::DentedSphere,
         ShapeKind::Cube,
         ShapeKind::SlottedCube,
+        ShapeKind::CappedWell,
     ];
 
     /// The name used on the command line and in `meta.json`.
@@ -120,6 +145,7 @@ impl ShapeKind {
             ShapeKind::DentedSphere => "dented_sphere",
             ShapeKind::Cube => "cube",
             ShapeKind::SlottedCube => "slotted_cube",
+            ShapeKind::CappedWell => "capped_well",
         }
     }
 
@@ -133,11 +159,13 @@ impl ShapeKind {
             ShapeKind::DentedSphere => dented_sphere_mesh(6),
             ShapeKind::Cube => cube_mesh(CUBE_GRID, false),
             ShapeKind::SlottedCube => cube_mesh(SLOT_GRID, true),
+            ShapeKind::CappedWell => capped_well_mesh(),
         }
     }
 
     /// The faces of [`ShapeKind::mesh`] that no silhouette sees: the dent of
-    /// [`ShapeKind::DentedSphere`], the slot's floor and walls of [`ShapeKind::SlottedCube`];
+    /// [`ShapeKind::DentedSphere`], the slot's floor and walls of [`ShapeKind::SlottedCube`],
+    /// the well and the cap's part below the block's top of [`ShapeKind::CappedWell`];
     /// `None` for the other shapes, whose masks' hull touches all of them. Scoring a mesh
     /// against this part alone (its completeness) says whether a method placed what only the
     /// shading shows.
@@ -147,7 +175,10 @@ impl ShapeKind {
 
     /// [`ShapeKind::hidden_part`] of `mesh`, this shape's own [`ShapeKind::mesh`] already built.
     pub(crate) fn hidden_part_of(&self, mesh: &TriMesh) -> Option<TriMesh> {
-        if !matches!(self, ShapeKind::DentedSphere | ShapeKind::SlottedCube) {
+        if !matches!(
+            self,
+            ShapeKind::DentedSphere | ShapeKind::SlottedCube | ShapeKind::CappedWell
+        ) {
             return None;
         }
         let (turn, (lo, hi)) = (cube_rotation().inverse(), slot_box());
@@ -156,6 +187,15 @@ impl ShapeKind {
             // The dent's vertices lie inside the unit sphere, the others on it; the faces
             // across the dent's rim (they span its steep edge) count.
             ShapeKind::DentedSphere => v.iter().any(|p| p.length() < 1.0 - 1e-4),
+            // Below the block's top, within the well's rim and no deeper than the well: the
+            // well, the cap's dipped side and its bottom.
+            ShapeKind::CappedWell => {
+                let c = well_rotation().inverse() * ((v[0] + v[1] + v[2]) / 3.0);
+                let top = WELL_BLOCK.2;
+                c.z < top - 1e-4
+                    && c.z > top - WELL_RADIUS - 1e-3
+                    && c.truncate().length() < WELL_RADIUS + 1e-4
+            }
             // A floor or wall face has its centroid below the slotted face, over the slot.
             _ => {
                 let c = turn * ((v[0] + v[1] + v[2]) / 3.0);
@@ -202,6 +242,17 @@ impl ShapeKind {
                 let (lo, hi) = slot_box();
                 q.abs().max_element() <= CUBE_HALF && !(q.cmpgt(lo).all() && q.cmplt(hi).all())
             }
+            ShapeKind::CappedWell => {
+                let q = well_rotation().inverse() * p;
+                let (radius, bottom, top) = WELL_BLOCK;
+                let from_centre = (q - Vec3::Z * top).length_squared();
+                let block = q.truncate().length_squared() <= radius * radius
+                    && (bottom..=top).contains(&q.z)
+                    && from_centre > WELL_RADIUS * WELL_RADIUS;
+                let cap_radius = WELL_RADIUS - WELL_GAP;
+                let cap = from_centre <= cap_radius * cap_radius && q.z >= top - CAP_DIP;
+                block || cap
+            }
         }
     }
 
@@ -241,6 +292,31 @@ impl ShapeKind {
                 let r = cube_rotation().inverse();
                 box_chord(r * o, r * d, CUBE_HALF).is_some_and(|(_, t1)| t1 > 0.0)
             }
+            // A ray into the well can leave it only through the bowl: the well's opening
+            // lies in one plane. So the block hits as its solid cylinder does; the cap as
+            // its ball cut by the plane of its bottom.
+            ShapeKind::CappedWell => {
+                let r = well_rotation().inverse();
+                let (o, d) = (r * o, r * d);
+                let (radius, bottom, top) = WELL_BLOCK;
+                let ahead = |c: Option<(f32, f32)>| c.is_some_and(|(t0, t1)| t0 <= t1 && t1 > 0.0);
+                let slab = |lo: f32, hi: f32| -> Option<(f32, f32)> {
+                    if d.z == 0.0 {
+                        return (lo..=hi)
+                            .contains(&o.z)
+                            .then_some((f32::NEG_INFINITY, f32::INFINITY));
+                    }
+                    let (a, b) = ((lo - o.z) / d.z, (hi - o.z) / d.z);
+                    Some((a.min(b), a.max(b)))
+                };
+                let meet = |a: Option<(f32, f32)>, b: Option<(f32, f32)>| {
+                    a.zip(b).map(|(a, b)| (a.0.max(b.0), a.1.min(b.1)))
+                };
+                let block = meet(slab(bottom, top), disc_chord(o, d, radius));
+                let cap_ball = ball_chord(o, d, Vec3::Z * top, WELL_RADIUS - WELL_GAP);
+                let cap = meet(slab(top - CAP_DIP, f32::INFINITY), cap_ball);
+                ahead(block) || ahead(cap)
+            }
         }
     }
 }
@@ -260,7 +336,7 @@ impl std::str::FromStr for ShapeKind {
             .ok_or_else(|| {
                 format!(
                     "unknown shape '{s}' (sphere, torus, bear, torus_knot, dented_sphere, cube, \
-                     slotted_cube)"
+                     slotted_cube, capped_well)"
                 )
             })
     }
@@ -271,6 +347,19 @@ fn ball_chord(o: Vec3, d: Vec3, c: Vec3, r: f32) -> Option<(f32, f32)> {
     let oc = o - c;
     let b = oc.dot(d);
     let disc = b * b - (oc.length_squared() - r * r);
+    (disc >= 0.0).then(|| (-b - disc.sqrt(), -b + disc.sqrt()))
+}
+
+/// The interval `[t0, t1]` of the line `o + t d` inside the infinite cylinder
+/// `x^2 + y^2 <= r^2` (all of it when the line runs along the axis inside it).
+fn disc_chord(o: Vec3, d: Vec3, r: f32) -> Option<(f32, f32)> {
+    let (o2, d2) = (o.truncate(), d.truncate());
+    let a = d2.length_squared();
+    if a < 1e-12 {
+        return (o2.length_squared() <= r * r).then_some((f32::NEG_INFINITY, f32::INFINITY));
+    }
+    let b = o2.dot(d2) / a;
+    let disc = b * b - (o2.length_squared() - r * r) / a;
     (disc >= 0.0).then(|| (-b - disc.sqrt(), -b + disc.sqrt()))
 }
 
@@ -364,6 +453,115 @@ fn cube_mesh(n: u32, slot: bool) -> TriMesh {
         positions,
         triangles,
     }
+}
+
+/// The closed surface of revolution about z of a profile `(r, z)` that starts and ends on the
+/// axis (`r = 0`), `around` segments in azimuth. Wound as a sphere's meridians run from its
+/// north pole to its south pole: outward when the solid lies on the profile's right in the
+/// `(r, z)` half-plane (the z axis up, r to the right).
+fn revolve(profile: &[(f32, f32)], around: u32) -> TriMesh {
+    let n = profile.len();
+    assert!(n >= 3 && profile[0].0 == 0.0 && profile[n - 1].0 == 0.0);
+    let mut positions = vec![Vec3::new(0.0, 0.0, profile[0].1)];
+    for &(r, z) in &profile[1..n - 1] {
+        for j in 0..around {
+            let a = TAU * j as f32 / around as f32;
+            positions.push(Vec3::new(r * a.cos(), r * a.sin(), z));
+        }
+    }
+    positions.push(Vec3::new(0.0, 0.0, profile[n - 1].1));
+    let last = positions.len() as u32 - 1;
+    // Ring i (1..n-1) holds the profile's point i.
+    let v = |i: usize, j: u32| 1 + (i as u32 - 1) * around + j % around;
+    let mut triangles = Vec::new();
+    for j in 0..around {
+        triangles.push([0, v(1, j), v(1, j + 1)]);
+        for i in 1..n - 2 {
+            let (a, b, c, d) = (v(i, j), v(i + 1, j), v(i + 1, j + 1), v(i, j + 1));
+            triangles.extend([[a, b, c], [a, c, d]]);
+        }
+        triangles.push([v(n - 2, j), last, v(n - 2, j + 1)]);
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
+
+/// `(r, z)` points along the circle of radius `rho` about `(0, zc)` from polar angle `from`
+/// to `to` (from +z), about every `step`, both ends included.
+fn arc(rho: f32, zc: f32, from: f32, to: f32, step: f32) -> Vec<(f32, f32)> {
+    let k = ((rho * (to - from).abs() / step).ceil() as usize).max(1);
+    (0..=k)
+        .map(|i| {
+            let t = from + (to - from) * i as f32 / k as f32;
+            (rho * t.sin().abs(), zc + rho * t.cos())
+        })
+        .collect()
+}
+
+/// `(r, z)` points along the segment from `a` to `b`, about every `step`, both ends included.
+fn segment(a: (f32, f32), b: (f32, f32), step: f32) -> Vec<(f32, f32)> {
+    let len = (b.0 - a.0).hypot(b.1 - a.1);
+    let k = ((len / step).ceil() as usize).max(1);
+    (0..=k)
+        .map(|i| {
+            let t = i as f32 / k as f32;
+            (a.0 + (b.0 - a.0) * t, a.1 + (b.1 - a.1) * t)
+        })
+        .collect()
+}
+
+/// Joins profile pieces that each start where the previous one ended.
+fn join(pieces: &[Vec<(f32, f32)>]) -> Vec<(f32, f32)> {
+    let mut out: Vec<(f32, f32)> = Vec::new();
+    for p in pieces {
+        out.extend(if out.is_empty() { &p[..] } else { &p[1..] });
+    }
+    // The axis points are exact.
+    let n = out.len();
+    out[0].0 = 0.0;
+    out[n - 1].0 = 0.0;
+    out
+}
+
+/// The capped well's two closed surfaces (block and cap), turned by [`well_rotation`].
+fn capped_well_mesh() -> TriMesh {
+    use std::f32::consts::{FRAC_PI_2, PI};
+    let (radius, bottom, top) = WELL_BLOCK;
+    let step = 0.01;
+    // The block, from the well's lowest point up the bowl, out over the top, down the side
+    // and in along the bottom.
+    let block = join(&[
+        arc(WELL_RADIUS, top, PI, FRAC_PI_2, step),
+        segment((WELL_RADIUS, top), (radius, top), step),
+        segment((radius, top), (radius, bottom), step),
+        segment((radius, bottom), (0.0, bottom), step),
+    ]);
+    // The cap, from its top down its sphere (a profile point on the block's top) and in along
+    // its flat bottom.
+    let rho = WELL_RADIUS - WELL_GAP;
+    let floor = top - CAP_DIP;
+    let lowest = ((floor - top) / rho).acos();
+    let cap = join(&[
+        arc(rho, top, 0.0, FRAC_PI_2, step),
+        arc(rho, top, FRAC_PI_2, lowest, step),
+        segment(
+            ((rho * rho - CAP_DIP * CAP_DIP).sqrt(), floor),
+            (0.0, floor),
+            step,
+        ),
+    ]);
+    let mut mesh = revolve(&block, WELL_AROUND);
+    let cap = revolve(&cap, WELL_AROUND);
+    let offset = mesh.positions.len() as u32;
+    mesh.positions.extend(cap.positions);
+    (mesh.triangles).extend(cap.triangles.iter().map(|t| t.map(|i| i + offset)));
+    let turn = well_rotation();
+    for p in mesh.positions.iter_mut() {
+        *p = turn * *p;
+    }
+    mesh
 }
 
 /// The dented sphere's radius along the unit direction `u`: 1, or where the ray from the
