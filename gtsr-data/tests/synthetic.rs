@@ -246,13 +246,19 @@ fn the_slot_is_outside_the_shape_but_inside_every_silhouette() {
     }
 }
 
-/// The capped well's gap and the hollow under its cap are empty, and no silhouette sees
-/// them: every ray through them from outside the bounding sphere hits the shape. The cap
-/// and the block are apart: the gap runs all the way round.
+/// The capped wells' gaps and the hollows under their caps are empty, and no silhouette sees
+/// them: every ray through them from outside the bounding sphere hits the shape. The mesh
+/// puts the block, the well and the cap where the analytic shape has them.
 #[test]
 fn the_hollow_under_the_cap_is_outside_the_shape_but_inside_every_silhouette() {
-    use gtsr_data::synthetic::shapes::{CAP_DIP, WELL_BLOCK, WELL_GAP, WELL_RADIUS, well_rotation};
-    let shape = ShapeKind::CappedWell;
+    for shape in [ShapeKind::CappedWell, ShapeKind::NarrowCappedWell] {
+        capped_well_checks(shape);
+    }
+}
+
+fn capped_well_checks(shape: ShapeKind) {
+    use gtsr_data::synthetic::shapes::{CAP_DIP, WELL_BLOCK, WELL_RADIUS, well_rotation};
+    let gap = shape.well_gap().unwrap();
     let turn = well_rotation();
     let top = WELL_BLOCK.2;
     let mut rng = gtsr_data::synthetic::rng::Rng::new(13, 0, 0, 0);
@@ -261,7 +267,7 @@ fn the_hollow_under_the_cap_is_outside_the_shape_but_inside_every_silhouette() {
     // In the gap: between the cap's sphere and the well's, below the block's top.
     for k in 0..200 {
         let a = std::f32::consts::TAU * k as f32 / 200.0;
-        let r = WELL_RADIUS - WELL_GAP * (0.1 + 0.8 * (k % 7) as f32 / 6.0);
+        let r = WELL_RADIUS - gap * (0.1 + 0.8 * (k % 7) as f32 / 6.0);
         let polar = std::f32::consts::FRAC_PI_2 + 0.3 * (k % 5) as f32 / 4.0 + 0.05;
         points.push(Vec3::new(
             r * polar.sin() * a.cos(),
@@ -291,7 +297,7 @@ fn the_hollow_under_the_cap_is_outside_the_shape_but_inside_every_silhouette() {
     }
     // Solid: the cap just inside its sphere and above its bottom, the block just under the
     // well and beside its rim.
-    let cap = WELL_RADIUS - WELL_GAP;
+    let cap = WELL_RADIUS - gap;
     for q in [
         Vec3::new(0.0, 0.0, top + cap - 0.01),
         Vec3::new(0.0, 0.0, top - CAP_DIP + 0.01),
@@ -330,8 +336,7 @@ fn the_hollow_under_the_cap_is_outside_the_shape_but_inside_every_silhouette() {
 #[test]
 fn the_hidden_part_is_the_slot_the_dent_and_the_well() {
     use gtsr_data::synthetic::shapes::{
-        CAP_DIP, CUBE_HALF, DENT_CENTRE, DENT_RADIUS, SLOT_DEPTH, SLOT_WIDTH, WELL_GAP,
-        WELL_RADIUS, slot_box,
+        CAP_DIP, CUBE_HALF, DENT_CENTRE, DENT_RADIUS, SLOT_DEPTH, SLOT_WIDTH, WELL_RADIUS, slot_box,
     };
     let area = |m: &gtsr_data::ply::TriMesh| -> f64 {
         (m.triangles.iter())
@@ -357,12 +362,12 @@ fn the_hidden_part_is_the_slot_the_dent_and_the_well() {
                 let a = (c * c + 1.0 - r * r) / (2.0 * c);
                 std::f64::consts::TAU * r * (r - (c - a))
             }
-            ShapeKind::CappedWell => {
+            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell => {
                 // The hemispherical well, the cap's spherical zone below the block's top and
                 // its flat bottom.
                 let (w, cap, dip) = (
                     f64::from(WELL_RADIUS),
-                    f64::from(WELL_RADIUS - WELL_GAP),
+                    f64::from(WELL_RADIUS - shape.well_gap().unwrap()),
                     f64::from(CAP_DIP),
                 );
                 let tau = std::f64::consts::TAU;

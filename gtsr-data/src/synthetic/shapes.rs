@@ -24,6 +24,7 @@
 //!   domed cap in the well, free of it: a ring gap [`WELL_GAP`] wide opens onto the hollow
 //!   between the cap's flat bottom and the well, which no silhouette sees; a solid of
 //!   revolution, its axis turned obliquely ([`well_rotation`]).
+//! * [`ShapeKind::NarrowCappedWell`]: the same with a gap of [`NARROW_WELL_GAP`].
 
 use std::collections::HashMap;
 use std::f32::consts::TAU;
@@ -52,6 +53,8 @@ pub enum ShapeKind {
     SlottedCube,
     /// A block with a well, and a cap resting free in it over a hollow no silhouette sees.
     CappedWell,
+    /// The capped well with a gap half as wide.
+    NarrowCappedWell,
 }
 
 /// Torus major radius.
@@ -90,9 +93,12 @@ pub const SLOT_WIDTH: f32 =
 pub const WELL_BLOCK: (f32, f32, f32) = (0.8, -0.6, 0.1);
 /// Radius of the hemispherical well, centred on the block's top face.
 pub const WELL_RADIUS: f32 = 0.35;
-/// The ring gap between the cap and the well (the cap's sphere is the well's, this much
-/// smaller): two pixels of a 128 px view of the scene at distance 4.
+/// The ring gap between the cap and the well of [`ShapeKind::CappedWell`] (the cap's sphere
+/// is the well's, this much smaller): two pixels of a 128 px view of the scene at distance 4.
 pub const WELL_GAP: f32 = 0.05;
+/// The gap of [`ShapeKind::NarrowCappedWell`]: two pixels at 256 px (amber_ingot's gap round its
+/// dome is about as wide).
+pub const NARROW_WELL_GAP: f32 = 0.0225;
 /// How far the cap's flat bottom lies below the block's top face.
 pub const CAP_DIP: f32 = 0.12;
 /// Azimuthal segments of the capped well's mesh.
@@ -124,7 +130,7 @@ pub fn cube_rotation() -> glam::Quat {
 
 impl ShapeKind {
     /// Every shape.
-    pub const ALL: [ShapeKind; 8] = [
+    pub const ALL: [ShapeKind; 9] = [
         ShapeKind::Sphere,
         ShapeKind::Torus,
         ShapeKind::Bear,
@@ -133,6 +139,7 @@ impl ShapeKind {
         ShapeKind::Cube,
         ShapeKind::SlottedCube,
         ShapeKind::CappedWell,
+        ShapeKind::NarrowCappedWell,
     ];
 
     /// The name used on the command line and in `meta.json`.
@@ -146,6 +153,7 @@ impl ShapeKind {
             ShapeKind::Cube => "cube",
             ShapeKind::SlottedCube => "slotted_cube",
             ShapeKind::CappedWell => "capped_well",
+            ShapeKind::NarrowCappedWell => "narrow_capped_well",
         }
     }
 
@@ -159,13 +167,15 @@ impl ShapeKind {
             ShapeKind::DentedSphere => dented_sphere_mesh(6),
             ShapeKind::Cube => cube_mesh(CUBE_GRID, false),
             ShapeKind::SlottedCube => cube_mesh(SLOT_GRID, true),
-            ShapeKind::CappedWell => capped_well_mesh(),
+            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell => {
+                capped_well_mesh(self.well_gap().unwrap_or(WELL_GAP))
+            }
         }
     }
 
     /// The faces of [`ShapeKind::mesh`] that no silhouette sees: the dent of
     /// [`ShapeKind::DentedSphere`], the slot's floor and walls of [`ShapeKind::SlottedCube`],
-    /// the well and the cap's part below the block's top of [`ShapeKind::CappedWell`];
+    /// the well and the cap's part below the block's top of the capped wells;
     /// `None` for the other shapes, whose masks' hull touches all of them. Scoring a mesh
     /// against this part alone (its completeness) says whether a method placed what only the
     /// shading shows.
@@ -177,7 +187,10 @@ impl ShapeKind {
     pub(crate) fn hidden_part_of(&self, mesh: &TriMesh) -> Option<TriMesh> {
         if !matches!(
             self,
-            ShapeKind::DentedSphere | ShapeKind::SlottedCube | ShapeKind::CappedWell
+            ShapeKind::DentedSphere
+                | ShapeKind::SlottedCube
+                | ShapeKind::CappedWell
+                | ShapeKind::NarrowCappedWell
         ) {
             return None;
         }
@@ -189,7 +202,7 @@ impl ShapeKind {
             ShapeKind::DentedSphere => v.iter().any(|p| p.length() < 1.0 - 1e-4),
             // Below the block's top, within the well's rim and no deeper than the well: the
             // well, the cap's dipped side and its bottom.
-            ShapeKind::CappedWell => {
+            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell => {
                 let c = well_rotation().inverse() * ((v[0] + v[1] + v[2]) / 3.0);
                 let top = WELL_BLOCK.2;
                 c.z < top - 1e-4
@@ -217,6 +230,16 @@ impl ShapeKind {
         Some(part)
     }
 
+    /// The ring gap of a capped well ([`WELL_GAP`], [`NARROW_WELL_GAP`]); `None` for the other
+    /// shapes.
+    pub fn well_gap(&self) -> Option<f32> {
+        match self {
+            ShapeKind::CappedWell => Some(WELL_GAP),
+            ShapeKind::NarrowCappedWell => Some(NARROW_WELL_GAP),
+            _ => None,
+        }
+    }
+
     /// Exact point-membership test of the analytic shape.
     pub fn contains(&self, p: Vec3) -> bool {
         match self {
@@ -242,14 +265,14 @@ impl ShapeKind {
                 let (lo, hi) = slot_box();
                 q.abs().max_element() <= CUBE_HALF && !(q.cmpgt(lo).all() && q.cmplt(hi).all())
             }
-            ShapeKind::CappedWell => {
+            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell => {
                 let q = well_rotation().inverse() * p;
                 let (radius, bottom, top) = WELL_BLOCK;
                 let from_centre = (q - Vec3::Z * top).length_squared();
                 let block = q.truncate().length_squared() <= radius * radius
                     && (bottom..=top).contains(&q.z)
                     && from_centre > WELL_RADIUS * WELL_RADIUS;
-                let cap_radius = WELL_RADIUS - WELL_GAP;
+                let cap_radius = WELL_RADIUS - self.well_gap().unwrap_or(WELL_GAP);
                 let cap = from_centre <= cap_radius * cap_radius && q.z >= top - CAP_DIP;
                 block || cap
             }
@@ -295,7 +318,7 @@ impl ShapeKind {
             // A ray into the well can leave it only through the bowl: the well's opening
             // lies in one plane. So the block hits as its solid cylinder does; the cap as
             // its ball cut by the plane of its bottom.
-            ShapeKind::CappedWell => {
+            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell => {
                 let r = well_rotation().inverse();
                 let (o, d) = (r * o, r * d);
                 let (radius, bottom, top) = WELL_BLOCK;
@@ -313,7 +336,8 @@ impl ShapeKind {
                     a.zip(b).map(|(a, b)| (a.0.max(b.0), a.1.min(b.1)))
                 };
                 let block = meet(slab(bottom, top), disc_chord(o, d, radius));
-                let cap_ball = ball_chord(o, d, Vec3::Z * top, WELL_RADIUS - WELL_GAP);
+                let cap_radius = WELL_RADIUS - self.well_gap().unwrap_or(WELL_GAP);
+                let cap_ball = ball_chord(o, d, Vec3::Z * top, cap_radius);
                 let cap = meet(slab(top - CAP_DIP, f32::INFINITY), cap_ball);
                 ahead(block) || ahead(cap)
             }
@@ -336,7 +360,7 @@ impl std::str::FromStr for ShapeKind {
             .ok_or_else(|| {
                 format!(
                     "unknown shape '{s}' (sphere, torus, bear, torus_knot, dented_sphere, cube, \
-                     slotted_cube, capped_well)"
+                     slotted_cube, capped_well, narrow_capped_well)"
                 )
             })
     }
@@ -525,8 +549,9 @@ fn join(pieces: &[Vec<(f32, f32)>]) -> Vec<(f32, f32)> {
     out
 }
 
-/// The capped well's two closed surfaces (block and cap), turned by [`well_rotation`].
-fn capped_well_mesh() -> TriMesh {
+/// The capped well's two closed surfaces (block and cap) with a gap `gap` wide, turned by
+/// [`well_rotation`].
+fn capped_well_mesh(gap: f32) -> TriMesh {
     use std::f32::consts::{FRAC_PI_2, PI};
     let (radius, bottom, top) = WELL_BLOCK;
     let step = 0.01;
@@ -540,7 +565,7 @@ fn capped_well_mesh() -> TriMesh {
     ]);
     // The cap, from its top down its sphere (a profile point on the block's top) and in along
     // its flat bottom.
-    let rho = WELL_RADIUS - WELL_GAP;
+    let rho = WELL_RADIUS - gap;
     let floor = top - CAP_DIP;
     let lowest = ((floor - top) / rho).acos();
     let cap = join(&[
