@@ -251,13 +251,18 @@ fn the_slot_is_outside_the_shape_but_inside_every_silhouette() {
 /// puts the block, the well and the cap where the analytic shape has them.
 #[test]
 fn the_hollow_under_the_cap_is_outside_the_shape_but_inside_every_silhouette() {
-    for shape in [ShapeKind::CappedWell, ShapeKind::NarrowCappedWell] {
+    for shape in [
+        ShapeKind::CappedWell,
+        ShapeKind::NarrowCappedWell,
+        ShapeKind::ShallowCappedWell,
+    ] {
         capped_well_checks(shape);
     }
 }
 
 fn capped_well_checks(shape: ShapeKind) {
-    use gtsr_data::synthetic::shapes::{CAP_DIP, WELL_BLOCK, WELL_RADIUS, well_rotation};
+    use gtsr_data::synthetic::shapes::{WELL_BLOCK, WELL_RADIUS, well_rotation};
+    let dip = shape.cap_dip().unwrap();
     let gap = shape.well_gap().unwrap();
     let turn = well_rotation();
     let top = WELL_BLOCK.2;
@@ -279,7 +284,7 @@ fn capped_well_checks(shape: ShapeKind) {
     for _ in 0..200 {
         let u = uniform();
         let a = std::f32::consts::TAU * u.x;
-        let z = top - CAP_DIP - 0.01 - u.y * (WELL_RADIUS - CAP_DIP - 0.03);
+        let z = top - dip - 0.01 - u.y * (WELL_RADIUS - dip - 0.03);
         let rim = (WELL_RADIUS * WELL_RADIUS - (z - top) * (z - top)).sqrt();
         let r = rim * 0.95 * u.z.sqrt();
         points.push(Vec3::new(r * a.cos(), r * a.sin(), z));
@@ -300,7 +305,7 @@ fn capped_well_checks(shape: ShapeKind) {
     let cap = WELL_RADIUS - gap;
     for q in [
         Vec3::new(0.0, 0.0, top + cap - 0.01),
-        Vec3::new(0.0, 0.0, top - CAP_DIP + 0.01),
+        Vec3::new(0.0, 0.0, top - dip + 0.01),
         Vec3::new(0.0, 0.0, top - WELL_RADIUS - 0.01),
         Vec3::new(WELL_RADIUS + 0.01, 0.0, top - 0.01),
     ] {
@@ -309,7 +314,7 @@ fn capped_well_checks(shape: ShapeKind) {
     // The mesh: every vertex lies on the block's faces, on the well's sphere or on the cap's
     // sphere or bottom, and both spheres carry vertices all the way round.
     let (radius, bottom, _) = WELL_BLOCK;
-    let floor = top - CAP_DIP;
+    let floor = top - dip;
     let near = |a: f32, b: f32| (a - b).abs() < 1e-4;
     let (mut on_cap, mut on_well) = (0, 0);
     for &p in &shape.mesh().positions {
@@ -336,7 +341,7 @@ fn capped_well_checks(shape: ShapeKind) {
 #[test]
 fn the_hidden_part_is_the_slot_the_dent_and_the_well() {
     use gtsr_data::synthetic::shapes::{
-        CAP_DIP, CUBE_HALF, DENT_CENTRE, DENT_RADIUS, SLOT_DEPTH, SLOT_WIDTH, WELL_RADIUS, slot_box,
+        CUBE_HALF, DENT_CENTRE, DENT_RADIUS, SLOT_DEPTH, SLOT_WIDTH, WELL_RADIUS, slot_box,
     };
     let area = |m: &gtsr_data::ply::TriMesh| -> f64 {
         (m.triangles.iter())
@@ -362,13 +367,13 @@ fn the_hidden_part_is_the_slot_the_dent_and_the_well() {
                 let a = (c * c + 1.0 - r * r) / (2.0 * c);
                 std::f64::consts::TAU * r * (r - (c - a))
             }
-            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell => {
+            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell | ShapeKind::ShallowCappedWell => {
                 // The hemispherical well, the cap's spherical zone below the block's top and
                 // its flat bottom.
                 let (w, cap, dip) = (
                     f64::from(WELL_RADIUS),
                     f64::from(WELL_RADIUS - shape.well_gap().unwrap()),
-                    f64::from(CAP_DIP),
+                    f64::from(shape.cap_dip().unwrap()),
                 );
                 let tau = std::f64::consts::TAU;
                 tau * w * w + tau * cap * dip + 0.5 * tau * (cap * cap - dip * dip)

@@ -25,6 +25,8 @@
 //!   between the cap's flat bottom and the well, which no silhouette sees; a solid of
 //!   revolution, its axis turned obliquely ([`well_rotation`]).
 //! * [`ShapeKind::NarrowCappedWell`]: the same with a gap of [`NARROW_WELL_GAP`].
+//! * [`ShapeKind::ShallowCappedWell`]: the capped well with its cap's bottom
+//!   [`SHALLOW_CAP_DIP`] below the block's top: the gap opens almost at once onto the hollow.
 
 use std::collections::HashMap;
 use std::f32::consts::TAU;
@@ -55,6 +57,8 @@ pub enum ShapeKind {
     CappedWell,
     /// The capped well with a gap half as wide.
     NarrowCappedWell,
+    /// The capped well with a cap that hardly dips into the well.
+    ShallowCappedWell,
 }
 
 /// Torus major radius.
@@ -101,6 +105,8 @@ pub const WELL_GAP: f32 = 0.05;
 pub const NARROW_WELL_GAP: f32 = 0.0225;
 /// How far the cap's flat bottom lies below the block's top face.
 pub const CAP_DIP: f32 = 0.12;
+/// How far the cap of [`ShapeKind::ShallowCappedWell`] dips below the block's top.
+pub const SHALLOW_CAP_DIP: f32 = 0.02;
 /// Azimuthal segments of the capped well's mesh.
 const WELL_AROUND: u32 = 256;
 
@@ -130,7 +136,7 @@ pub fn cube_rotation() -> glam::Quat {
 
 impl ShapeKind {
     /// Every shape.
-    pub const ALL: [ShapeKind; 9] = [
+    pub const ALL: [ShapeKind; 10] = [
         ShapeKind::Sphere,
         ShapeKind::Torus,
         ShapeKind::Bear,
@@ -140,6 +146,7 @@ impl ShapeKind {
         ShapeKind::SlottedCube,
         ShapeKind::CappedWell,
         ShapeKind::NarrowCappedWell,
+        ShapeKind::ShallowCappedWell,
     ];
 
     /// The name used on the command line and in `meta.json`.
@@ -154,6 +161,7 @@ impl ShapeKind {
             ShapeKind::SlottedCube => "slotted_cube",
             ShapeKind::CappedWell => "capped_well",
             ShapeKind::NarrowCappedWell => "narrow_capped_well",
+            ShapeKind::ShallowCappedWell => "shallow_capped_well",
         }
     }
 
@@ -167,8 +175,11 @@ impl ShapeKind {
             ShapeKind::DentedSphere => dented_sphere_mesh(6),
             ShapeKind::Cube => cube_mesh(CUBE_GRID, false),
             ShapeKind::SlottedCube => cube_mesh(SLOT_GRID, true),
-            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell => {
-                capped_well_mesh(self.well_gap().unwrap_or(WELL_GAP))
+            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell | ShapeKind::ShallowCappedWell => {
+                capped_well_mesh(
+                    self.well_gap().unwrap_or(WELL_GAP),
+                    self.cap_dip().unwrap_or(CAP_DIP),
+                )
             }
         }
     }
@@ -191,6 +202,7 @@ impl ShapeKind {
                 | ShapeKind::SlottedCube
                 | ShapeKind::CappedWell
                 | ShapeKind::NarrowCappedWell
+                | ShapeKind::ShallowCappedWell
         ) {
             return None;
         }
@@ -202,7 +214,7 @@ impl ShapeKind {
             ShapeKind::DentedSphere => v.iter().any(|p| p.length() < 1.0 - 1e-4),
             // Below the block's top, within the well's rim and no deeper than the well: the
             // well, the cap's dipped side and its bottom.
-            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell => {
+            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell | ShapeKind::ShallowCappedWell => {
                 let c = well_rotation().inverse() * ((v[0] + v[1] + v[2]) / 3.0);
                 let top = WELL_BLOCK.2;
                 c.z < top - 1e-4
@@ -234,8 +246,18 @@ impl ShapeKind {
     /// shapes.
     pub fn well_gap(&self) -> Option<f32> {
         match self {
-            ShapeKind::CappedWell => Some(WELL_GAP),
+            ShapeKind::CappedWell | ShapeKind::ShallowCappedWell => Some(WELL_GAP),
             ShapeKind::NarrowCappedWell => Some(NARROW_WELL_GAP),
+            _ => None,
+        }
+    }
+
+    /// How far a capped well's cap dips below the block's top ([`CAP_DIP`],
+    /// [`SHALLOW_CAP_DIP`]); `None` for the other shapes.
+    pub fn cap_dip(&self) -> Option<f32> {
+        match self {
+            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell => Some(CAP_DIP),
+            ShapeKind::ShallowCappedWell => Some(SHALLOW_CAP_DIP),
             _ => None,
         }
     }
@@ -265,7 +287,7 @@ impl ShapeKind {
                 let (lo, hi) = slot_box();
                 q.abs().max_element() <= CUBE_HALF && !(q.cmpgt(lo).all() && q.cmplt(hi).all())
             }
-            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell => {
+            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell | ShapeKind::ShallowCappedWell => {
                 let q = well_rotation().inverse() * p;
                 let (radius, bottom, top) = WELL_BLOCK;
                 let from_centre = (q - Vec3::Z * top).length_squared();
@@ -273,7 +295,8 @@ impl ShapeKind {
                     && (bottom..=top).contains(&q.z)
                     && from_centre > WELL_RADIUS * WELL_RADIUS;
                 let cap_radius = WELL_RADIUS - self.well_gap().unwrap_or(WELL_GAP);
-                let cap = from_centre <= cap_radius * cap_radius && q.z >= top - CAP_DIP;
+                let dip = self.cap_dip().unwrap_or(CAP_DIP);
+                let cap = from_centre <= cap_radius * cap_radius && q.z >= top - dip;
                 block || cap
             }
         }
@@ -318,7 +341,7 @@ impl ShapeKind {
             // A ray into the well can leave it only through the bowl: the well's opening
             // lies in one plane. So the block hits as its solid cylinder does; the cap as
             // its ball cut by the plane of its bottom.
-            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell => {
+            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell | ShapeKind::ShallowCappedWell => {
                 let r = well_rotation().inverse();
                 let (o, d) = (r * o, r * d);
                 let (radius, bottom, top) = WELL_BLOCK;
@@ -338,7 +361,8 @@ impl ShapeKind {
                 let block = meet(slab(bottom, top), disc_chord(o, d, radius));
                 let cap_radius = WELL_RADIUS - self.well_gap().unwrap_or(WELL_GAP);
                 let cap_ball = ball_chord(o, d, Vec3::Z * top, cap_radius);
-                let cap = meet(slab(top - CAP_DIP, f32::INFINITY), cap_ball);
+                let dip = self.cap_dip().unwrap_or(CAP_DIP);
+                let cap = meet(slab(top - dip, f32::INFINITY), cap_ball);
                 ahead(block) || ahead(cap)
             }
         }
@@ -360,7 +384,7 @@ impl std::str::FromStr for ShapeKind {
             .ok_or_else(|| {
                 format!(
                     "unknown shape '{s}' (sphere, torus, bear, torus_knot, dented_sphere, cube, \
-                     slotted_cube, capped_well, narrow_capped_well)"
+                     slotted_cube, capped_well, narrow_capped_well, shallow_capped_well)"
                 )
             })
     }
@@ -549,9 +573,9 @@ fn join(pieces: &[Vec<(f32, f32)>]) -> Vec<(f32, f32)> {
     out
 }
 
-/// The capped well's two closed surfaces (block and cap) with a gap `gap` wide, turned by
-/// [`well_rotation`].
-fn capped_well_mesh(gap: f32) -> TriMesh {
+/// The capped well's two closed surfaces (block and cap) with a gap `gap` wide and the cap's
+/// bottom `dip` below the block's top, turned by [`well_rotation`].
+fn capped_well_mesh(gap: f32, dip: f32) -> TriMesh {
     use std::f32::consts::{FRAC_PI_2, PI};
     let (radius, bottom, top) = WELL_BLOCK;
     let step = 0.01;
@@ -566,16 +590,12 @@ fn capped_well_mesh(gap: f32) -> TriMesh {
     // The cap, from its top down its sphere (a profile point on the block's top) and in along
     // its flat bottom.
     let rho = WELL_RADIUS - gap;
-    let floor = top - CAP_DIP;
+    let floor = top - dip;
     let lowest = ((floor - top) / rho).acos();
     let cap = join(&[
         arc(rho, top, 0.0, FRAC_PI_2, step),
         arc(rho, top, FRAC_PI_2, lowest, step),
-        segment(
-            ((rho * rho - CAP_DIP * CAP_DIP).sqrt(), floor),
-            (0.0, floor),
-            step,
-        ),
+        segment(((rho * rho - dip * dip).sqrt(), floor), (0.0, floor), step),
     ]);
     let mut mesh = revolve(&block, WELL_AROUND);
     let cap = revolve(&cap, WELL_AROUND);
