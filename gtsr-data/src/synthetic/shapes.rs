@@ -176,10 +176,7 @@ impl ShapeKind {
             ShapeKind::Cube => cube_mesh(CUBE_GRID, false),
             ShapeKind::SlottedCube => cube_mesh(SLOT_GRID, true),
             ShapeKind::CappedWell | ShapeKind::NarrowCappedWell | ShapeKind::ShallowCappedWell => {
-                capped_well_mesh(
-                    self.well_gap().unwrap_or(WELL_GAP),
-                    self.cap_dip().unwrap_or(CAP_DIP),
-                )
+                self.well().map(Well::mesh).unwrap_or_default()
             }
         }
     }
@@ -196,14 +193,9 @@ impl ShapeKind {
 
     /// [`ShapeKind::hidden_part`] of `mesh`, this shape's own [`ShapeKind::mesh`] already built.
     pub(crate) fn hidden_part_of(&self, mesh: &TriMesh) -> Option<TriMesh> {
-        if !matches!(
-            self,
-            ShapeKind::DentedSphere
-                | ShapeKind::SlottedCube
-                | ShapeKind::CappedWell
-                | ShapeKind::NarrowCappedWell
-                | ShapeKind::ShallowCappedWell
-        ) {
+        if !matches!(self, ShapeKind::DentedSphere | ShapeKind::SlottedCube)
+            && self.well().is_none()
+        {
             return None;
         }
         let (turn, (lo, hi)) = (cube_rotation().inverse(), slot_box());
@@ -212,14 +204,8 @@ impl ShapeKind {
             // The dent's vertices lie inside the unit sphere, the others on it; the faces
             // across the dent's rim (they span its steep edge) count.
             ShapeKind::DentedSphere => v.iter().any(|p| p.length() < 1.0 - 1e-4),
-            // Below the block's top, within the well's rim and no deeper than the well: the
-            // well, the cap's dipped side and its bottom.
             ShapeKind::CappedWell | ShapeKind::NarrowCappedWell | ShapeKind::ShallowCappedWell => {
-                let c = well_rotation().inverse() * ((v[0] + v[1] + v[2]) / 3.0);
-                let top = WELL_BLOCK.2;
-                c.z < top - 1e-4
-                    && c.z > top - WELL_RADIUS - 1e-3
-                    && c.truncate().length() < WELL_RADIUS + 1e-4
+                Well::hides((v[0] + v[1] + v[2]) / 3.0)
             }
             // A floor or wall face has its centroid below the slotted face, over the slot.
             _ => {
@@ -242,24 +228,27 @@ impl ShapeKind {
         Some(part)
     }
 
+    /// A capped well's proportions; `None` for the other shapes.
+    fn well(&self) -> Option<Well> {
+        let (gap, dip) = match self {
+            ShapeKind::CappedWell => (WELL_GAP, CAP_DIP),
+            ShapeKind::NarrowCappedWell => (NARROW_WELL_GAP, CAP_DIP),
+            ShapeKind::ShallowCappedWell => (WELL_GAP, SHALLOW_CAP_DIP),
+            _ => return None,
+        };
+        Some(Well { gap, dip })
+    }
+
     /// The ring gap of a capped well ([`WELL_GAP`], [`NARROW_WELL_GAP`]); `None` for the other
     /// shapes.
     pub fn well_gap(&self) -> Option<f32> {
-        match self {
-            ShapeKind::CappedWell | ShapeKind::ShallowCappedWell => Some(WELL_GAP),
-            ShapeKind::NarrowCappedWell => Some(NARROW_WELL_GAP),
-            _ => None,
-        }
+        self.well().map(|w| w.gap)
     }
 
     /// How far a capped well's cap dips below the block's top ([`CAP_DIP`],
     /// [`SHALLOW_CAP_DIP`]); `None` for the other shapes.
     pub fn cap_dip(&self) -> Option<f32> {
-        match self {
-            ShapeKind::CappedWell | ShapeKind::NarrowCappedWell => Some(CAP_DIP),
-            ShapeKind::ShallowCappedWell => Some(SHALLOW_CAP_DIP),
-            _ => None,
-        }
+        self.well().map(|w| w.dip)
     }
 
     /// Exact point-membership test of the analytic shape.
@@ -288,16 +277,7 @@ impl ShapeKind {
                 q.abs().max_element() <= CUBE_HALF && !(q.cmpgt(lo).all() && q.cmplt(hi).all())
             }
             ShapeKind::CappedWell | ShapeKind::NarrowCappedWell | ShapeKind::ShallowCappedWell => {
-                let q = well_rotation().inverse() * p;
-                let (radius, bottom, top) = WELL_BLOCK;
-                let from_centre = (q - Vec3::Z * top).length_squared();
-                let block = q.truncate().length_squared() <= radius * radius
-                    && (bottom..=top).contains(&q.z)
-                    && from_centre > WELL_RADIUS * WELL_RADIUS;
-                let cap_radius = WELL_RADIUS - self.well_gap().unwrap_or(WELL_GAP);
-                let dip = self.cap_dip().unwrap_or(CAP_DIP);
-                let cap = from_centre <= cap_radius * cap_radius && q.z >= top - dip;
-                block || cap
+                self.well().is_some_and(|w| w.contains(p))
             }
         }
     }
@@ -338,32 +318,8 @@ impl ShapeKind {
                 let r = cube_rotation().inverse();
                 box_chord(r * o, r * d, CUBE_HALF).is_some_and(|(_, t1)| t1 > 0.0)
             }
-            // A ray into the well can leave it only through the bowl: the well's opening
-            // lies in one plane. So the block hits as its solid cylinder does; the cap as
-            // its ball cut by the plane of its bottom.
             ShapeKind::CappedWell | ShapeKind::NarrowCappedWell | ShapeKind::ShallowCappedWell => {
-                let r = well_rotation().inverse();
-                let (o, d) = (r * o, r * d);
-                let (radius, bottom, top) = WELL_BLOCK;
-                let ahead = |c: Option<(f32, f32)>| c.is_some_and(|(t0, t1)| t0 <= t1 && t1 > 0.0);
-                let slab = |lo: f32, hi: f32| -> Option<(f32, f32)> {
-                    if d.z == 0.0 {
-                        return (lo..=hi)
-                            .contains(&o.z)
-                            .then_some((f32::NEG_INFINITY, f32::INFINITY));
-                    }
-                    let (a, b) = ((lo - o.z) / d.z, (hi - o.z) / d.z);
-                    Some((a.min(b), a.max(b)))
-                };
-                let meet = |a: Option<(f32, f32)>, b: Option<(f32, f32)>| {
-                    a.zip(b).map(|(a, b)| (a.0.max(b.0), a.1.min(b.1)))
-                };
-                let block = meet(slab(bottom, top), disc_chord(o, d, radius));
-                let cap_radius = WELL_RADIUS - self.well_gap().unwrap_or(WELL_GAP);
-                let cap_ball = ball_chord(o, d, Vec3::Z * top, cap_radius);
-                let dip = self.cap_dip().unwrap_or(CAP_DIP);
-                let cap = meet(slab(top - dip, f32::INFINITY), cap_ball);
-                ahead(block) || ahead(cap)
+                self.well().is_some_and(|w| w.ray_hits(o, d))
             }
         }
     }
@@ -573,40 +529,104 @@ fn join(pieces: &[Vec<(f32, f32)>]) -> Vec<(f32, f32)> {
     out
 }
 
-/// The capped well's two closed surfaces (block and cap) with a gap `gap` wide and the cap's
-/// bottom `dip` below the block's top, turned by [`well_rotation`].
-fn capped_well_mesh(gap: f32, dip: f32) -> TriMesh {
-    use std::f32::consts::{FRAC_PI_2, PI};
-    let (radius, bottom, top) = WELL_BLOCK;
-    let step = 0.01;
-    // The block, from the well's lowest point up the bowl, out over the top, down the side
-    // and in along the bottom.
-    let block = join(&[
-        arc(WELL_RADIUS, top, PI, FRAC_PI_2, step),
-        segment((WELL_RADIUS, top), (radius, top), step),
-        segment((radius, top), (radius, bottom), step),
-        segment((radius, bottom), (0.0, bottom), step),
-    ]);
-    // The cap, from its top down its sphere (a profile point on the block's top) and in along
-    // its flat bottom.
-    let rho = WELL_RADIUS - gap;
-    let floor = top - dip;
-    let lowest = ((floor - top) / rho).acos();
-    let cap = join(&[
-        arc(rho, top, 0.0, FRAC_PI_2, step),
-        arc(rho, top, FRAC_PI_2, lowest, step),
-        segment(((rho * rho - dip * dip).sqrt(), floor), (0.0, floor), step),
-    ]);
-    let mut mesh = revolve(&block, WELL_AROUND);
-    let cap = revolve(&cap, WELL_AROUND);
-    let offset = mesh.positions.len() as u32;
-    mesh.positions.extend(cap.positions);
-    (mesh.triangles).extend(cap.triangles.iter().map(|t| t.map(|i| i + offset)));
-    let turn = well_rotation();
-    for p in mesh.positions.iter_mut() {
-        *p = turn * *p;
+/// A capped well's proportions: the ring gap and how far the cap dips below the block's top.
+#[derive(Clone, Copy, Debug)]
+struct Well {
+    gap: f32,
+    dip: f32,
+}
+
+impl Well {
+    fn cap_radius(self) -> f32 {
+        WELL_RADIUS - self.gap
     }
-    mesh
+
+    fn contains(self, p: Vec3) -> bool {
+        let q = well_rotation().inverse() * p;
+        let (radius, bottom, top) = WELL_BLOCK;
+        let from_centre = (q - Vec3::Z * top).length_squared();
+        let block = q.truncate().length_squared() <= radius * radius
+            && (bottom..=top).contains(&q.z)
+            && from_centre > WELL_RADIUS * WELL_RADIUS;
+        let cap_radius = self.cap_radius();
+        let cap = from_centre <= cap_radius * cap_radius && q.z >= top - self.dip;
+        block || cap
+    }
+
+    /// A ray into the well can leave it only through the bowl: the well's opening lies in one
+    /// plane. So the block hits as its solid cylinder does; the cap as its ball cut by the
+    /// plane of its bottom.
+    fn ray_hits(self, o: Vec3, d: Vec3) -> bool {
+        let r = well_rotation().inverse();
+        let (o, d) = (r * o, r * d);
+        let (radius, bottom, top) = WELL_BLOCK;
+        let ahead = |c: Option<(f32, f32)>| c.is_some_and(|(t0, t1)| t0 <= t1 && t1 > 0.0);
+        let slab = |lo: f32, hi: f32| -> Option<(f32, f32)> {
+            if d.z == 0.0 {
+                return (lo..=hi)
+                    .contains(&o.z)
+                    .then_some((f32::NEG_INFINITY, f32::INFINITY));
+            }
+            let (a, b) = ((lo - o.z) / d.z, (hi - o.z) / d.z);
+            Some((a.min(b), a.max(b)))
+        };
+        let meet = |a: Option<(f32, f32)>, b: Option<(f32, f32)>| {
+            a.zip(b).map(|(a, b)| (a.0.max(b.0), a.1.min(b.1)))
+        };
+        let block = meet(slab(bottom, top), disc_chord(o, d, radius));
+        let cap_ball = ball_chord(o, d, Vec3::Z * top, self.cap_radius());
+        let cap = meet(slab(top - self.dip, f32::INFINITY), cap_ball);
+        ahead(block) || ahead(cap)
+    }
+
+    /// Whether a face with this centroid is hidden: below the block's top, within the well's
+    /// rim and no deeper than the well (the well, the cap's dipped side and its bottom).
+    fn hides(centroid: Vec3) -> bool {
+        let c = well_rotation().inverse() * centroid;
+        let top = WELL_BLOCK.2;
+        c.z < top - 1e-4
+            && c.z > top - WELL_RADIUS - 1e-3
+            && c.truncate().length() < WELL_RADIUS + 1e-4
+    }
+
+    /// The two closed surfaces (block and cap), turned by [`well_rotation`].
+    fn mesh(self) -> TriMesh {
+        use std::f32::consts::{FRAC_PI_2, PI};
+        let (radius, bottom, top) = WELL_BLOCK;
+        let step = 0.01;
+        // The block, from the well's lowest point up the bowl, out over the top, down the side
+        // and in along the bottom.
+        let block = join(&[
+            arc(WELL_RADIUS, top, PI, FRAC_PI_2, step),
+            segment((WELL_RADIUS, top), (radius, top), step),
+            segment((radius, top), (radius, bottom), step),
+            segment((radius, bottom), (0.0, bottom), step),
+        ]);
+        // The cap, from its top down its sphere (a profile point on the block's top) and in along
+        // its flat bottom.
+        let rho = self.cap_radius();
+        let floor = top - self.dip;
+        let lowest = ((floor - top) / rho).acos();
+        let cap = join(&[
+            arc(rho, top, 0.0, FRAC_PI_2, step),
+            arc(rho, top, FRAC_PI_2, lowest, step),
+            segment(
+                ((rho * rho - self.dip * self.dip).sqrt(), floor),
+                (0.0, floor),
+                step,
+            ),
+        ]);
+        let mut mesh = revolve(&block, WELL_AROUND);
+        let cap = revolve(&cap, WELL_AROUND);
+        let offset = mesh.positions.len() as u32;
+        mesh.positions.extend(cap.positions);
+        (mesh.triangles).extend(cap.triangles.iter().map(|t| t.map(|i| i + offset)));
+        let turn = well_rotation();
+        for p in mesh.positions.iter_mut() {
+            *p = turn * *p;
+        }
+        mesh
+    }
 }
 
 /// The dented sphere's radius along the unit direction `u`: 1, or where the ray from the
