@@ -2,7 +2,7 @@
 //! the step and the configuration, in one safetensors file written atomically. Loading it and
 //! stepping gives exactly the step an uninterrupted run would have taken.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
 use burn::tensor::Device;
@@ -27,9 +27,9 @@ struct Meta {
     counters: Counters,
     config: TrainConfig,
     /// Per set: `(param, width)` in order.
-    layouts: HashMap<String, Vec<(ParamKind, usize)>>,
+    layouts: BTreeMap<String, Vec<(ParamKind, usize)>>,
     /// Per set and parameter: Adam `(width, time)`.
-    adam: HashMap<String, Vec<(ParamKind, usize, usize)>>,
+    adam: BTreeMap<String, Vec<(ParamKind, usize, usize)>>,
 }
 
 const FORMAT: u32 = 1;
@@ -47,8 +47,8 @@ fn floats(b: &[u8]) -> Vec<f32> {
 /// Writes `trainer` to `path` (temporary file + rename).
 pub fn save(trainer: &Trainer, path: &Path) -> Result<(), ModelError> {
     let mut tensors: Vec<(String, Vec<usize>, Vec<u8>)> = Vec::new();
-    let mut layouts = HashMap::new();
-    let mut adam = HashMap::new();
+    let mut layouts = BTreeMap::new();
+    let mut adam = BTreeMap::new();
     let mut sets: Vec<(&str, HostSet, &SetOptimizer, Option<&DensifyStats>)> = vec![(
         "surface",
         trainer.model.surface.to_host(),

@@ -1,11 +1,14 @@
-//! Adam per parameter tensor (Burn's `Adam`, one state per tensor) with state that follows the
+//! Adam per parameter tensor (one Burn `AdamState` per tensor) with state that follows the
 //! Gaussians when densification keeps, drops, clones or splits them: Burn's `ModuleOptimizer`
-//! cannot change a parameter's size, so the states are held and resized here.
+//! cannot change a parameter's size, so the states are held and resized here. A tensor's first
+//! step is Burn's `Adam`; every later one is [`gtsr_render_kernels::adam::adam_step`], the same
+//! arithmetic in one pass (on NdArray parallel, elsewhere Burn's ops).
 
 use std::collections::HashMap;
 
 use burn::optim::{Adam, AdamConfig, AdamState, AdaptiveMomentumState, Optimizer};
 use burn::tensor::{Int, Tensor, TensorData};
+use gtsr_render_kernels::adam::{AdamStep, adam_step};
 
 use crate::gaussians::{GaussianSet, ParamKind, host_vec};
 
@@ -23,9 +26,20 @@ impl std::fmt::Debug for SetOptimizer {
     }
 }
 
-/// The Adam configuration used everywhere (3DGS: epsilon 1e-15).
+/// Adam's first-moment decay (Burn's and 3DGS's default).
+pub const ADAM_BETA_1: f32 = 0.9;
+/// Adam's second-moment decay (Burn's and 3DGS's default).
+pub const ADAM_BETA_2: f32 = 0.999;
+/// Adam's epsilon (3DGS: 1e-15).
+pub const ADAM_EPSILON: f32 = 1e-15;
+
+/// The Adam configuration used everywhere ([`ADAM_BETA_1`], [`ADAM_BETA_2`], [`ADAM_EPSILON`]).
 pub fn adam() -> Adam {
-    AdamConfig::new().with_epsilon(1e-15).build()
+    AdamConfig::new()
+        .with_beta_1(ADAM_BETA_1)
+        .with_beta_2(ADAM_BETA_2)
+        .with_epsilon(ADAM_EPSILON)
+        .build()
 }
 
 impl Default for SetOptimizer {
@@ -56,15 +70,44 @@ impl SetOptimizer {
                 let rate = lr(k);
                 match grads.get(&k) {
                     Some(g) if rate > 0.0 => {
-                        let (next, state) = self.adam.step(
-                            rate,
-                            p.clone().inner(),
-                            g.clone(),
-                            self.states.remove(&k),
-                        );
-                        if let Some(s) = state {
-                            self.states.insert(k, s);
-                        }
+                        let next = match self.states.remove(&k) {
+                            // Every later step: one fused pass (Burn's arithmetic, to the bit).
+                            Some(state) if state.momentum.max_moment_2.is_none() => {
+                                let m = state.momentum;
+                                let time = m.time + 1;
+                                let step = AdamStep {
+                                    lr: rate,
+                                    beta_1: ADAM_BETA_1,
+                                    beta_2: ADAM_BETA_2,
+                                    epsilon: ADAM_EPSILON,
+                                    time,
+                                };
+                                let (next, moment_1, moment_2) = adam_step(
+                                    p.clone().inner(),
+                                    g.clone(),
+                                    m.moment_1,
+                                    m.moment_2,
+                                    step,
+                                );
+                                let momentum = AdaptiveMomentumState {
+                                    time,
+                                    moment_1,
+                                    moment_2,
+                                    max_moment_2: None,
+                                };
+                                self.states.insert(k, AdamState::new(momentum));
+                                next
+                            }
+                            // The first step starts the state as Burn does.
+                            state => {
+                                let (next, state) =
+                                    self.adam.step(rate, p.clone().inner(), g.clone(), state);
+                                if let Some(s) = state {
+                                    self.states.insert(k, s);
+                                }
+                                next
+                            }
+                        };
                         (k, Tensor::from_inner(next).require_grad())
                     }
                     _ => (k, p),

@@ -5,7 +5,8 @@
 //! image, with its backward pass; a second, [`blur::BlurBackend`], blurs image planes with a
 //! separable window (SSIM's Gaussian) on the CPU ([`blur_planes`]), and a third,
 //! [`sh::ShBackend`], evaluates spherical-harmonic colours in each Gaussian's view direction
-//! ([`sh::sh_colours`]). Use the splats through
+//! ([`sh::sh_colours`]), and a fourth, [`adam::AdamBackend`], takes one Adam step on a
+//! parameter tensor in a single pass ([`adam::adam_step`]). Use the splats through
 //! [`render`]:
 //!
 //! - inputs are ordinary Burn tensors (see [`SplatInputs`]); on an autodiff device the image
@@ -39,6 +40,7 @@
 // backend, and the kernels are written against it on purpose.
 #![allow(deprecated)]
 
+pub mod adam;
 pub mod antialias;
 pub mod api;
 mod autodiff;
