@@ -17,11 +17,11 @@
 //! Burn's to the bit.
 
 use burn::backend::{Backend, Dispatch, NdArray, backend_extension, tensor::FloatTensor};
-use burn::tensor::{Device, Tensor};
+use burn::tensor::Tensor;
 use burn_ndarray::NdArrayTensor;
 use rayon::prelude::*;
 
-use crate::backend::{host_slice, is_f64, to_nd};
+use crate::backend::{host_slice, is_f64, on_ndarray, to_nd};
 use crate::scalar::Real;
 
 /// The constants of one Adam step (Burn's `AdamConfig` names, without AMSGrad or weight decay).
@@ -175,14 +175,6 @@ pub fn adam_step_by_tensor_ops<const D: usize>(
     (param - update.mul_scalar(step.lr), m1, m2)
 }
 
-fn has_adam_op(device: &Device) -> bool {
-    use burn::backend::DispatchDevice;
-    matches!(
-        device.clone().without_autodiff().as_dispatch(),
-        DispatchDevice::NdArray(_)
-    )
-}
-
 /// One Adam step on `param` (no autodiff: pass the inner tensors) with gradient `grad` and the
 /// moments of the previous steps; returns `(param', moment_1', moment_2')`. On NdArray in f32 or
 /// f64 it is one parallel pass ([`AdamBackend`]); elsewhere [`adam_step_by_tensor_ops`]. Either
@@ -216,7 +208,7 @@ pub fn adam_step<const D: usize>(
     let same = [&grad, &moment_1, &moment_2]
         .iter()
         .all(|t| t.dtype() == param.dtype() && t.dims() == param.dims());
-    if float && same && has_adam_op(&param.device()) {
+    if float && same && on_ndarray(&param.device()) {
         let (p, m1, m2) = <Dispatch as AdamBackend>::adam_step(
             param.into_dispatch(),
             grad.into_dispatch(),
@@ -238,6 +230,8 @@ mod tests {
     use burn::optim::{AdamConfig, AdamState, AdaptiveMomentumState, Optimizer};
     use burn::tensor::{DType, TensorData};
     use rand::{RngExt, SeedableRng, rngs::StdRng};
+
+    use burn::tensor::Device;
 
     use super::*;
 

@@ -143,6 +143,17 @@ pub(crate) fn read_host<F: Real>(t: &NdArrayTensor) -> Vec<F> {
     }
 }
 
+/// Whether `device` is NdArray (with or without autodiff): the CPU extensions of this crate
+/// ([`crate::blur::BlurBackend`], [`crate::sh::ShBackend`], [`crate::adam::AdamBackend`]) run
+/// there, other devices take their Burn-ops paths.
+pub(crate) fn on_ndarray(device: &burn::tensor::Device) -> bool {
+    use burn::backend::DispatchDevice;
+    matches!(
+        device.clone().without_autodiff().as_dispatch(),
+        DispatchDevice::NdArray(_)
+    )
+}
+
 /// The tensor's data as `&[F]` without a copy where it is contiguous, in standard order and of
 /// precision `F`; otherwise converted ([`read_host`]).
 pub(crate) fn host_slice<F: Real>(t: &NdArrayTensor) -> std::borrow::Cow<'_, [F]> {

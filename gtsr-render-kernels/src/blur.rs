@@ -12,7 +12,7 @@
 //! would spend `W / (2r + 1)` times the work on.
 
 use burn::backend::{Autodiff, Backend, Dispatch, NdArray, backend_extension, tensor::FloatTensor};
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::{Tensor, TensorData};
 use burn_autodiff::{
     checkpoint::{base::Checkpointer, strategy::CheckpointStrategy},
     grads::Gradients,
@@ -21,7 +21,7 @@ use burn_autodiff::{
 use burn_ndarray::NdArrayTensor;
 use rayon::prelude::*;
 
-use crate::backend::{host_slice, is_f64, to_nd};
+use crate::backend::{host_slice, is_f64, on_ndarray, to_nd};
 use crate::scalar::Real;
 
 /// A symmetric blur window of odd length.
@@ -190,15 +190,6 @@ pub(crate) fn blur_host<F: Real>(x: &[F], shape: &[usize], w: &[F]) -> Vec<F> {
     out
 }
 
-/// Whether `device` runs [`BlurBackend`] (NdArray, with or without autodiff).
-fn has_blur_op(device: &Device) -> bool {
-    use burn::backend::DispatchDevice;
-    matches!(
-        device.clone().without_autodiff().as_dispatch(),
-        DispatchDevice::NdArray(_)
-    )
-}
-
 /// Blurs `[C, H, W]` planes with `window` along W and along H, with zero padding (see the
 /// module docs); differentiable on an autodiff device.
 ///
@@ -218,7 +209,7 @@ pub fn blur_planes(x: Tensor<3>, window: &BlurWindow) -> Tensor<3> {
         x.dtype(),
         burn::tensor::DType::F32 | burn::tensor::DType::F64
     );
-    if float && has_blur_op(&device) {
+    if float && on_ndarray(&device) {
         return Tensor::from_dispatch(<Dispatch as BlurBackend>::blur_planes(
             x.into_dispatch(),
             window.clone(),
@@ -243,6 +234,8 @@ pub fn blur_planes_by_products(x: Tensor<3>, window: &BlurWindow) -> Tensor<3> {
 
 #[cfg(test)]
 mod tests {
+    use burn::tensor::Device;
+
     use super::*;
     use burn::tensor::DType::{self, F32, F64};
     use rand::{RngExt, SeedableRng};

@@ -13,7 +13,7 @@
 //! [`sh_colours_by_tensor_ops`].
 
 use burn::backend::{Autodiff, Backend, Dispatch, NdArray, backend_extension, tensor::FloatTensor};
-use burn::tensor::{DType, Device, Tensor, TensorData};
+use burn::tensor::{DType, Tensor, TensorData};
 use burn_autodiff::{
     checkpoint::{base::Checkpointer, strategy::CheckpointStrategy},
     grads::Gradients,
@@ -22,7 +22,7 @@ use burn_autodiff::{
 use burn_ndarray::NdArrayTensor;
 use rayon::prelude::*;
 
-use crate::backend::{host_slice, is_f64, to_nd};
+use crate::backend::{host_slice, is_f64, on_ndarray, to_nd};
 use crate::scalar::Real;
 
 /// The degree-0 basis value `Y_0^0`.
@@ -490,15 +490,6 @@ pub(crate) fn backward_host<F: Real>(
     }
 }
 
-/// Whether `device` runs [`ShBackend`] (NdArray, with or without autodiff).
-fn has_sh_op(device: &Device) -> bool {
-    use burn::backend::DispatchDevice;
-    matches!(
-        device.clone().without_autodiff().as_dispatch(),
-        DispatchDevice::NdArray(_)
-    )
-}
-
 /// SH colours `[N, 3]` from `dc` `[N, 3]`, `rest` `[N, 3 M]` (coefficient-major: column
 /// `3 (k - 1) + channel`; `None` or `M = 0` for degree 0) and `means` `[N, 3]`, seen from
 /// `view`; differentiable on an autodiff device (see the module docs).
@@ -533,7 +524,7 @@ pub fn sh_colours(
         Some(r) if view.degree > 0 => r,
         _ => return dc_colours(dc),
     };
-    if float && has_sh_op(&device) && [rest.dtype(), means.dtype()] == [dc.dtype(); 2] {
+    if float && on_ndarray(&device) && [rest.dtype(), means.dtype()] == [dc.dtype(); 2] {
         return Tensor::from_dispatch(<Dispatch as ShBackend>::sh_colours(
             dc.into_dispatch(),
             rest.into_dispatch(),
@@ -637,6 +628,8 @@ pub fn sh_colours_by_tensor_ops(
 
 #[cfg(test)]
 mod tests {
+    use burn::tensor::Device;
+
     use super::*;
     use burn::tensor::DType::{F32, F64};
     use rand::{RngExt, SeedableRng};

@@ -13,7 +13,8 @@ pub struct GenSceneArgs {
     /// Output folder (created; existing files with the same names are replaced).
     #[arg(long, short)]
     pub out: PathBuf,
-    /// Shape: sphere, torus, bear, torus_knot, dented_sphere, cube, slotted_cube, capped_well, narrow_capped_well or shallow_capped_well.
+    /// Shape: sphere, torus, bear, torus_knot, dented_sphere, cube, slotted_cube, capped_well,
+    /// narrow_capped_well or shallow_capped_well.
     #[arg(long, default_value = "sphere")]
     pub shape: ShapeKind,
     /// Material preset, opaque-like to very translucent: chalk, marble, wax, jade, amber, glassy.
