@@ -10,7 +10,8 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use gtsr_data::synthetic::{MaterialPreset, SceneConfig, ShapeKind, generate_scene};
+use gtsr_data::synthetic::{SceneConfig, ShapeKind, generate_scene};
+use gtsr_data::transport::MaterialPreset;
 use gtsr_data::{LoadOptions, load_blender};
 
 fn arg(name: &str) -> Option<String> {

@@ -128,6 +128,14 @@ impl ColmapCamera {
     }
 }
 
+/// The fields of one record of a sparse model, read alike from a binary file ([`Reader`]) or
+/// from a line of a text file ([`Line`]); `what` names the field in errors.
+trait Fields {
+    fn u32(&mut self, what: &str) -> Result<u32>;
+    fn u64(&mut self, what: &str) -> Result<u64>;
+    fn f64(&mut self, what: &str) -> Result<f64>;
+}
+
 struct Reader<'a> {
     data: &'a [u8],
     pos: usize,
@@ -154,17 +162,8 @@ impl<'a> Reader<'a> {
         self.pos += n;
         Ok(s)
     }
-    fn u64(&mut self, what: &str) -> Result<u64> {
-        Ok(u64::from_le_bytes(self.take(8, what)?.try_into().unwrap()))
-    }
-    fn u32(&mut self, what: &str) -> Result<u32> {
-        Ok(u32::from_le_bytes(self.take(4, what)?.try_into().unwrap()))
-    }
     fn i32(&mut self, what: &str) -> Result<i32> {
         Ok(i32::from_le_bytes(self.take(4, what)?.try_into().unwrap()))
-    }
-    fn f64(&mut self, what: &str) -> Result<f64> {
-        Ok(f64::from_le_bytes(self.take(8, what)?.try_into().unwrap()))
     }
     fn cstr(&mut self, what: &str) -> Result<String> {
         let rest = &self.data[self.pos..];
@@ -195,6 +194,54 @@ impl<'a> Reader<'a> {
     }
 }
 
+impl Fields for Reader<'_> {
+    fn u32(&mut self, what: &str) -> Result<u32> {
+        Ok(u32::from_le_bytes(self.take(4, what)?.try_into().unwrap()))
+    }
+    fn u64(&mut self, what: &str) -> Result<u64> {
+        Ok(u64::from_le_bytes(self.take(8, what)?.try_into().unwrap()))
+    }
+    fn f64(&mut self, what: &str) -> Result<f64> {
+        Ok(f64::from_le_bytes(self.take(8, what)?.try_into().unwrap()))
+    }
+}
+
+/// One data line of a text model: its number (from 1) and its whitespace-separated fields.
+struct Line<'a> {
+    path: &'a Path,
+    ln: usize,
+    tokens: std::str::SplitWhitespace<'a>,
+}
+
+impl Line<'_> {
+    /// The next field, parsed.
+    fn next<T: std::str::FromStr>(&mut self, what: &str) -> Result<T> {
+        let (path, line) = (self.path, self.ln);
+        let tok = self
+            .tokens
+            .next()
+            .ok_or_else(|| DataError::malformed(path, format!("line {line}: missing {what}")))?;
+        tok.parse().map_err(|_| {
+            DataError::malformed(
+                path,
+                format!("line {line}: cannot parse {what} from '{tok}'"),
+            )
+        })
+    }
+}
+
+impl Fields for Line<'_> {
+    fn u32(&mut self, what: &str) -> Result<u32> {
+        self.next(what)
+    }
+    fn u64(&mut self, what: &str) -> Result<u64> {
+        self.next(what)
+    }
+    fn f64(&mut self, what: &str) -> Result<f64> {
+        self.next(what)
+    }
+}
+
 fn read_bytes(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| DataError::io(path, e))
 }
@@ -208,20 +255,49 @@ fn is_bin(path: &Path) -> bool {
     path.extension().is_some_and(|e| e == "bin")
 }
 
-fn parse<T: std::str::FromStr>(
+/// The records of a binary model file: a u64 count (`count_what` in errors) that must fit in
+/// the file at `min_size` bytes a record, then the records, each read by `record`.
+fn bin_records<T>(
     path: &Path,
-    line: usize,
-    tok: Option<&str>,
-    what: &str,
-) -> Result<T> {
-    let tok =
-        tok.ok_or_else(|| DataError::malformed(path, format!("line {line}: missing {what}")))?;
-    tok.parse().map_err(|_| {
-        DataError::malformed(
+    count_what: &str,
+    min_size: usize,
+    mut record: impl FnMut(&mut Reader<'_>) -> Result<T>,
+) -> Result<Vec<T>> {
+    let data = read_bytes(path)?;
+    let mut r = Reader::new(&data, path);
+    let n = r.count(count_what, min_size)?;
+    (0..n).map(|_| record(&mut r)).collect()
+}
+
+/// The records of a text model file, one a line that is neither blank nor a `#` comment, each
+/// read by `record`; with `skip_next`, the line after each record (an image's 2D points,
+/// possibly blank) is passed over too.
+fn text_records<T>(
+    path: &Path,
+    skip_next: bool,
+    mut record: impl FnMut(&mut Line<'_>) -> Result<T>,
+) -> Result<Vec<T>> {
+    let text = read_text(path)?;
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim_start().starts_with('#'));
+    let mut out = Vec::new();
+    while let Some((ln, line)) = lines.next() {
+        let line = line.trim();
+        if line.is_empty() {
+            continue;
+        }
+        out.push(record(&mut Line {
             path,
-            format!("line {line}: cannot parse {what} from '{tok}'"),
-        )
-    })
+            ln: ln + 1,
+            tokens: line.split_whitespace(),
+        })?);
+        if skip_next {
+            lines.next();
+        }
+    }
+    Ok(out)
 }
 
 fn model_params(path: &Path, model: &str, line: usize) -> Result<usize> {
@@ -234,209 +310,178 @@ fn model_params(path: &Path, model: &str, line: usize) -> Result<usize> {
         })
 }
 
+/// A camera record: id, model, width, height, parameters. The formats differ in how they
+/// store the model (`model` reads its name and number of parameters, given the camera id)
+/// and the parameters (`params` reads them, given the model), and in the names their errors
+/// give the width and the height (`size_names`).
+fn camera_record<F: Fields>(
+    f: &mut F,
+    size_names: [&str; 2],
+    model: impl FnOnce(&mut F, u32) -> Result<(String, usize)>,
+    params: impl FnOnce(&mut F, &str, usize) -> Result<Vec<f64>>,
+) -> Result<ColmapCamera> {
+    let id = f.u32("camera id")?;
+    let (model, np) = model(f, id)?;
+    let width = f.u64(size_names[0])?;
+    let height = f.u64(size_names[1])?;
+    let params = params(f, &model, np)?;
+    Ok(ColmapCamera {
+        id,
+        model,
+        width,
+        height,
+        params,
+    })
+}
+
 /// Reads `cameras.txt` or `cameras.bin` (by extension).
 pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>> {
-    let mut out = Vec::new();
     if is_bin(path) {
-        let data = read_bytes(path)?;
-        let mut r = Reader::new(&data, path);
-        let n = r.count("number of cameras", 24)?;
-        for _ in 0..n {
-            let id = r.u32("camera id")?;
-            let model_id = r.i32("camera model id")?;
-            let (_, name, np) =
-                *CAMERA_MODELS
-                    .iter()
-                    .find(|m| m.0 == model_id)
-                    .ok_or_else(|| {
-                        DataError::malformed(
-                            path,
-                            format!("camera {id}: unknown camera model id {model_id}"),
-                        )
-                    })?;
-            let width = r.u64("camera width")?;
-            let height = r.u64("camera height")?;
-            let params = (0..np)
-                .map(|_| r.f64("camera parameter"))
-                .collect::<Result<_>>()?;
-            out.push(ColmapCamera {
-                id,
-                model: name.to_string(),
-                width,
-                height,
-                params,
-            });
-        }
+        bin_records(path, "number of cameras", 24, |r| {
+            camera_record(
+                r,
+                ["camera width", "camera height"],
+                |r, id| {
+                    let model_id = r.i32("camera model id")?;
+                    let (_, name, np) = *CAMERA_MODELS
+                        .iter()
+                        .find(|m| m.0 == model_id)
+                        .ok_or_else(|| {
+                            DataError::malformed(
+                                path,
+                                format!("camera {id}: unknown camera model id {model_id}"),
+                            )
+                        })?;
+                    Ok((name.to_string(), np))
+                },
+                |r, _, np| (0..np).map(|_| r.f64("camera parameter")).collect(),
+            )
+        })
     } else {
-        let text = read_text(path)?;
-        for (ln, line) in text.lines().enumerate() {
-            let line = line.trim();
-            if line.is_empty() || line.starts_with('#') {
-                continue;
-            }
-            let ln = ln + 1;
-            let mut t = line.split_whitespace();
-            let id: u32 = parse(path, ln, t.next(), "camera id")?;
-            let model: String = parse(path, ln, t.next(), "camera model")?;
-            let np = model_params(path, &model, ln)?;
-            let width: u64 = parse(path, ln, t.next(), "width")?;
-            let height: u64 = parse(path, ln, t.next(), "height")?;
-            let params: Vec<f64> = t
-                .map(|s| {
-                    s.parse::<f64>().map_err(|_| {
-                        DataError::malformed(
+        text_records(path, false, |l| {
+            camera_record(
+                l,
+                ["width", "height"],
+                |l, _| {
+                    let model: String = l.next("camera model")?;
+                    let np = model_params(path, &model, l.ln)?;
+                    Ok((model, np))
+                },
+                |l, model, np| {
+                    let ln = l.ln;
+                    let params: Vec<f64> = (&mut l.tokens)
+                        .map(|s| {
+                            s.parse::<f64>().map_err(|_| {
+                                DataError::malformed(
+                                    path,
+                                    format!("line {ln}: cannot parse parameter '{s}'"),
+                                )
+                            })
+                        })
+                        .collect::<Result<_>>()?;
+                    if params.len() != np {
+                        return Err(DataError::malformed(
                             path,
-                            format!("line {ln}: cannot parse parameter '{s}'"),
-                        )
-                    })
-                })
-                .collect::<Result<_>>()?;
-            if params.len() != np {
-                return Err(DataError::malformed(
-                    path,
-                    format!(
-                        "line {ln}: model {model} needs {np} parameters, found {}",
-                        params.len()
-                    ),
-                ));
-            }
-            out.push(ColmapCamera {
-                id,
-                model,
-                width,
-                height,
-                params,
-            });
-        }
+                            format!(
+                                "line {ln}: model {model} needs {np} parameters, found {}",
+                                params.len()
+                            ),
+                        ));
+                    }
+                    Ok(params)
+                },
+            )
+        })
     }
-    Ok(out)
+}
+
+/// An image record: id, rotation, translation, camera id, then the name as `name` reads it.
+fn image_record<F: Fields>(
+    f: &mut F,
+    name: impl FnOnce(&mut F) -> Result<String>,
+) -> Result<ColmapImage> {
+    let id = f.u32("image id")?;
+    let mut qvec = [0.0; 4];
+    for q in qvec.iter_mut() {
+        *q = f.f64("quaternion")?;
+    }
+    let mut tvec = [0.0; 3];
+    for t in tvec.iter_mut() {
+        *t = f.f64("translation")?;
+    }
+    let camera_id = f.u32("camera id")?;
+    let name = name(f)?;
+    Ok(ColmapImage {
+        id,
+        qvec,
+        tvec,
+        camera_id,
+        name,
+    })
 }
 
 /// Reads `images.txt` or `images.bin` (by extension); 2D points are skipped.
 pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>> {
-    let mut out = Vec::new();
     if is_bin(path) {
-        let data = read_bytes(path)?;
-        let mut r = Reader::new(&data, path);
-        let n = r.count("number of images", 64)?;
-        for _ in 0..n {
-            let id = r.u32("image id")?;
-            let mut qvec = [0.0; 4];
-            for q in qvec.iter_mut() {
-                *q = r.f64("quaternion")?;
-            }
-            let mut tvec = [0.0; 3];
-            for t in tvec.iter_mut() {
-                *t = r.f64("translation")?;
-            }
-            let camera_id = r.u32("camera id")?;
-            let name = r.cstr("image name")?;
-            let np = r.count("number of 2D points", 24)?;
-            r.take(np * 24, "2D points")?;
-            out.push(ColmapImage {
-                id,
-                qvec,
-                tvec,
-                camera_id,
-                name,
-            });
-        }
+        bin_records(path, "number of images", 64, |r| {
+            image_record(r, |r| {
+                let name = r.cstr("image name")?;
+                let np = r.count("number of 2D points", 24)?;
+                r.take(np * 24, "2D points")?;
+                Ok(name)
+            })
+        })
     } else {
-        let text = read_text(path)?;
-        let mut lines = text
-            .lines()
-            .enumerate()
-            .filter(|(_, l)| !l.trim_start().starts_with('#'));
-        while let Some((ln, line)) = lines.next() {
-            let line = line.trim();
-            if line.is_empty() {
-                continue;
-            }
-            let ln = ln + 1;
-            let mut t = line.split_whitespace();
-            let id: u32 = parse(path, ln, t.next(), "image id")?;
-            let mut qvec = [0.0; 4];
-            for q in qvec.iter_mut() {
-                *q = parse(path, ln, t.next(), "quaternion")?;
-            }
-            let mut tvec = [0.0; 3];
-            for v in tvec.iter_mut() {
-                *v = parse(path, ln, t.next(), "translation")?;
-            }
-            let camera_id: u32 = parse(path, ln, t.next(), "camera id")?;
-            let name = t.collect::<Vec<_>>().join(" ");
-            if name.is_empty() {
-                return Err(DataError::malformed(
-                    path,
-                    format!("line {ln}: missing image name"),
-                ));
-            }
-            // The next line lists the 2D points (possibly empty).
-            lines.next();
-            out.push(ColmapImage {
-                id,
-                qvec,
-                tvec,
-                camera_id,
-                name,
-            });
-        }
+        // Two lines an image: the second lists its 2D points (possibly none).
+        text_records(path, true, |l| {
+            image_record(l, |l| {
+                let name = (&mut l.tokens).collect::<Vec<_>>().join(" ");
+                if name.is_empty() {
+                    return Err(DataError::malformed(
+                        path,
+                        format!("line {}: missing image name", l.ln),
+                    ));
+                }
+                Ok(name)
+            })
+        })
     }
-    Ok(out)
+}
+
+/// A point record: id, position, colour (as `rgb` reads it), reprojection error.
+fn point_record<F: Fields>(
+    f: &mut F,
+    rgb: impl FnOnce(&mut F) -> Result<[u8; 3]>,
+) -> Result<ColmapPoint> {
+    let id = f.u64("point id")?;
+    let xyz = [f.f64("x")?, f.f64("y")?, f.f64("z")?];
+    let rgb = rgb(f)?;
+    let error = f.f64("error")?;
+    Ok(ColmapPoint {
+        id,
+        xyz,
+        rgb,
+        error,
+    })
 }
 
 /// Reads `points3D.txt` or `points3D.bin` (by extension); tracks are skipped.
 pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint>> {
-    let mut out = Vec::new();
     if is_bin(path) {
-        let data = read_bytes(path)?;
-        let mut r = Reader::new(&data, path);
-        let n = r.count("number of points", 51)?;
-        for _ in 0..n {
-            let id = r.u64("point id")?;
-            let xyz = [r.f64("x")?, r.f64("y")?, r.f64("z")?];
-            let c = r.take(3, "colour")?;
-            let rgb = [c[0], c[1], c[2]];
-            let error = r.f64("error")?;
+        bin_records(path, "number of points", 51, |r| {
+            let point = point_record(r, |r| {
+                let c = r.take(3, "colour")?;
+                Ok([c[0], c[1], c[2]])
+            })?;
             let tl = r.count("track length", 8)?;
             r.take(tl * 8, "track")?;
-            out.push(ColmapPoint {
-                id,
-                xyz,
-                rgb,
-                error,
-            });
-        }
+            Ok(point)
+        })
     } else {
-        let text = read_text(path)?;
-        for (ln, line) in text.lines().enumerate() {
-            let line = line.trim();
-            if line.is_empty() || line.starts_with('#') {
-                continue;
-            }
-            let ln = ln + 1;
-            let mut t = line.split_whitespace();
-            let id: u64 = parse(path, ln, t.next(), "point id")?;
-            let xyz = [
-                parse(path, ln, t.next(), "x")?,
-                parse(path, ln, t.next(), "y")?,
-                parse(path, ln, t.next(), "z")?,
-            ];
-            let rgb = [
-                parse(path, ln, t.next(), "r")?,
-                parse(path, ln, t.next(), "g")?,
-                parse(path, ln, t.next(), "b")?,
-            ];
-            let error: f64 = parse(path, ln, t.next(), "error")?;
-            out.push(ColmapPoint {
-                id,
-                xyz,
-                rgb,
-                error,
-            });
-        }
+        text_records(path, false, |l| {
+            point_record(l, |l| Ok([l.next("r")?, l.next("g")?, l.next("b")?]))
+        })
     }
-    Ok(out)
 }
 
 /// The folder holding the sparse model: `<root>/sparse/0`, `<root>/sparse` or `<root>`,

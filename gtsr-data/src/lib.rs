@@ -6,7 +6,10 @@
 //!   return a [`Scene`]; options in [`LoadOptions`].
 //! * [`image_io`]: PNG/JPEG/EXR reading (values kept in the file's encoding, see
 //!   [`image_io::Encoding`]), downscaling, atomic PNG writing.
-//! * [`synthetic`]: procedural shapes, the CPU path tracer and [`synthetic::generate_scene`].
+//! * [`transport`]: the CPU path tracer with random-walk subsurface scattering (the hollow
+//!   search's forward model and the scene generator's renderer).
+//! * [`synthetic`]: procedural shapes and [`synthetic::generate_scene`].
+//! * [`parse`]: range-checked parsers for command-line values.
 //! * [`ply`]: PLY meshes.
 //!
 //! Bad input gives a [`DataError`] naming the file (and frame) and the problem; nothing
@@ -17,11 +20,13 @@
 pub mod blender;
 pub mod camera;
 pub mod colmap;
-pub mod error;
+mod error;
 pub mod image_io;
+pub mod parse;
 pub mod ply;
 pub mod scene;
 pub mod synthetic;
+pub mod transport;
 
 pub use blender::load_blender;
 pub use camera::Camera;

@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use crate::camera::Camera;
 use crate::error::{DataError, Result};
 use crate::image_io::{Encoding, Image, downscale_image, read_mask};
-use crate::synthetic::rng::Rng;
+use crate::transport::rng::Rng;
 
 /// Background to composite RGBA images onto (`out = rgb * mask + bg * (1 - mask)`, in the
 /// file's encoding, as NeRF-style pipelines do with straight alpha).

@@ -3,11 +3,9 @@
 
 use glam::Vec3;
 use gtsr_data::Camera;
-use gtsr_data::synthetic::material::Boundary;
-use gtsr_data::synthetic::{
-    Lighting, Material, MaterialPreset, SceneConfig, ShapeKind, Tracer, generate_scene,
-    scene_cameras,
-};
+use gtsr_data::synthetic::{SceneConfig, ShapeKind, generate_scene, scene_cameras};
+use gtsr_data::transport::material::Boundary;
+use gtsr_data::transport::{Lighting, Material, MaterialPreset, Tracer};
 use gtsr_data::{Background, LoadOptions, load_blender};
 
 fn small_config(shape: ShapeKind, spp: u32) -> SceneConfig {
@@ -138,7 +136,7 @@ fn meshes_are_closed_and_match_analytic_volume() {
             );
         }
         // Volume against a Monte Carlo estimate of the analytic shape.
-        let mut rng = gtsr_data::synthetic::rng::Rng::new(3, 0, 0, 0);
+        let mut rng = gtsr_data::transport::rng::Rng::new(3, 0, 0, 0);
         let n = 200_000;
         let inside = (0..n)
             .filter(|_| {
@@ -165,7 +163,7 @@ fn the_dent_is_outside_the_shape_but_inside_every_silhouette() {
     let axis = dent_axis();
     // The dent's floor lies 0.25 below the sphere; its rim plane about 0.094 below.
     assert!((dented_sphere_radius(axis) - 0.75).abs() < 1e-5);
-    let mut rng = gtsr_data::synthetic::rng::Rng::new(5, 0, 0, 0);
+    let mut rng = gtsr_data::transport::rng::Rng::new(5, 0, 0, 0);
     let mut unit = || loop {
         let v = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
         if v.length_squared() > 1e-4 && v.length_squared() <= 1.0 {
@@ -203,7 +201,7 @@ fn the_slot_is_outside_the_shape_but_inside_every_silhouette() {
     let turn = cube_rotation();
     let (lo, hi) = slot_box();
     assert!(((hi.y - lo.y) - SLOT_WIDTH).abs() < 1e-6 && (hi.z - lo.z - SLOT_DEPTH).abs() < 1e-6);
-    let mut rng = gtsr_data::synthetic::rng::Rng::new(9, 0, 0, 0);
+    let mut rng = gtsr_data::transport::rng::Rng::new(9, 0, 0, 0);
     let mut uniform = || Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
     for _ in 0..400 {
         let p = turn * (lo + (hi - lo) * (uniform() * 0.98 + 0.01));
@@ -266,7 +264,7 @@ fn capped_well_checks(shape: ShapeKind) {
     let gap = shape.well_gap().unwrap();
     let turn = well_rotation();
     let top = WELL_BLOCK.2;
-    let mut rng = gtsr_data::synthetic::rng::Rng::new(13, 0, 0, 0);
+    let mut rng = gtsr_data::transport::rng::Rng::new(13, 0, 0, 0);
     let mut uniform = || Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
     let mut points = Vec::new();
     // In the gap: between the cap's sphere and the well's, below the block's top.
@@ -456,7 +454,7 @@ fn deterministic_for_a_seed() {
     assert!(a[3] == c[3], "cameras do not depend on the seed");
 }
 
-fn mean_over_object(r: &gtsr_data::synthetic::Rendered) -> (f64, usize) {
+fn mean_over_object(r: &gtsr_data::transport::Rendered) -> (f64, usize) {
     let idx: Vec<usize> = (0..r.alpha.len()).filter(|&i| r.alpha[i] >= 1.0).collect();
     let s: f64 = idx
         .iter()

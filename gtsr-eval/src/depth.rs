@@ -1,6 +1,6 @@
-//! Rendered geometry against a ground-truth mesh, pixel by pixel: the mesh's depth and normal
-//! maps by ray casting ([`MeshRaycaster`]) and the error of a rendered depth / normal map
-//! against them ([`DepthComparison`], [`DepthMetrics`]).
+//! Rendered geometry against a ground-truth mesh, pixel by pixel: the error of a rendered
+//! depth / normal map ([`DepthComparison`], [`DepthMetrics`]) against the mesh's own maps
+//! ([`gtsr_mesh::raycast::MeshRaycaster`]).
 //!
 //! The chamfer distance of a fused mesh mixes the rendered depth with what the fusion adds
 //! (silhouette carving, truncation, marching cubes); these numbers measure the rendered
@@ -9,182 +9,15 @@
 //! turn from the true ones.
 //!
 //! Conventions: depth is z-depth along the camera axis (OpenCV camera space, as
-//! [`crate::TsdfVolume::integrate`] takes it); normals are camera-space unit vectors facing the
+//! [`gtsr_mesh::tsdf::TsdfVolume::integrate`] takes it); normals are camera-space unit vectors facing the
 //! camera; a pixel's ray goes through its centre.
 
 use glam::Vec3;
-use gtsr_data::Camera;
-use gtsr_data::ply::TriMesh;
-use rayon::prelude::*;
+use gtsr_mesh::MeshError;
+use gtsr_mesh::raycast::{EDGE_FOOTPRINTS, MeshDepth};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{EvalError, Result};
-use crate::metrics::Target;
-
-/// The ground-truth geometry one camera sees.
-#[derive(Clone, Debug)]
-pub struct MeshDepth {
-    /// Image width, pixels.
-    pub width: usize,
-    /// Image height, pixels.
-    pub height: usize,
-    /// Z-depth of the first hit per pixel (row-major), `0` where the ray misses the mesh.
-    pub depth: Vec<f32>,
-    /// Camera-space unit normal of the triangle hit, facing the camera; zero on a miss.
-    pub normal: Vec<Vec3>,
-    /// The camera's focal length in pixels (`fx`): a pixel's footprint at depth `z` is
-    /// `z / focal`.
-    pub focal: f32,
-}
-
-/// A pixel lies on an occluding edge of the truth ([`MeshDepth::occluding_edges`]) where the
-/// depth jumps by more than this many footprints to a 4-neighbour.
-pub const EDGE_FOOTPRINTS: f32 = 10.0;
-
-impl MeshDepth {
-    /// Per pixel, whether it lies on an occluding edge of the mesh: it hits the mesh and a
-    /// 4-neighbour misses it or hits it more than `footprints` pixel footprints nearer or
-    /// farther (a surface behind another, or the object's outline). Where a pixel straddles
-    /// such an edge, a rendering that blends what the pixel covers cannot match the one
-    /// surface its centre's ray meets.
-    pub fn occluding_edges(&self, footprints: f32) -> Vec<bool> {
-        let (w, h) = (self.width, self.height);
-        (0..w * h)
-            .map(|p| {
-                let z = self.depth[p];
-                if !(z.is_finite() && z > 0.0) {
-                    return false;
-                }
-                let limit = footprints * z / self.focal;
-                self.neighbour_depths(p)
-                    .any(|zn| !(zn.is_finite() && zn > 0.0) || (zn - z).abs() > limit)
-            })
-            .collect()
-    }
-
-    /// The depths of pixel `p`'s 4-neighbours inside the image.
-    fn neighbour_depths(&self, p: usize) -> impl Iterator<Item = f32> + '_ {
-        let (w, h) = (self.width, self.height);
-        let (x, y) = (p % w, p / w);
-        [
-            (x.wrapping_sub(1), y),
-            (x + 1, y),
-            (x, y.wrapping_sub(1)),
-            (x, y + 1),
-        ]
-        .into_iter()
-        .filter(move |&(nx, ny)| nx < w && ny < h)
-        .map(move |(nx, ny)| self.depth[ny * w + nx])
-    }
-
-    /// Per pixel, the depth of the nearest 4-neighbour that the mesh places more than
-    /// `footprints` pixel footprints in front of this pixel's own hit (this pixel lies just
-    /// behind an occluding edge, on its far side), `0` where none does or the pixel misses the
-    /// mesh. A rendering whose nearer surface spills past the edge reads this depth there.
-    pub fn occluders(&self, footprints: f32) -> Vec<f32> {
-        let (w, h) = (self.width, self.height);
-        (0..w * h)
-            .map(|p| {
-                let z = self.depth[p];
-                if !(z.is_finite() && z > 0.0) {
-                    return 0.0;
-                }
-                let limit = z - footprints * z / self.focal;
-                self.neighbour_depths(p)
-                    .filter(|zn| zn.is_finite() && *zn > 0.0 && *zn < limit)
-                    .reduce(f32::min)
-                    .unwrap_or(0.0)
-            })
-            .collect()
-    }
-}
-
-/// A mesh prepared for ray casting (a BVH, built once for any number of cameras).
-pub struct MeshRaycaster<'a> {
-    target: Target<'a>,
-}
-
-impl<'a> MeshRaycaster<'a> {
-    /// Builds the BVH; errors on an empty or invalid mesh (`what` names it in errors).
-    pub fn new(mesh: &'a TriMesh, what: &str) -> Result<Self> {
-        Ok(MeshRaycaster {
-            target: Target::new(mesh, what)?,
-        })
-    }
-
-    /// The first hit of the ray from `origin` along the unit direction `dir`: the distance
-    /// along the ray and the unit normal of the triangle hit, turned to face the origin.
-    pub fn first_hit(&self, origin: Vec3, dir: Vec3) -> Option<(f32, Vec3)> {
-        self.target.first_hit(origin, dir)
-    }
-
-    /// The mesh's depth and normal maps seen from `camera` (one ray through each pixel
-    /// centre, first hit). Parallel over rows.
-    pub fn render(&self, camera: &Camera) -> MeshDepth {
-        self.render_grid(camera, 1)
-    }
-
-    /// The mesh's depth and normal maps averaged over each pixel's area: `n x n` rays per
-    /// pixel on a regular grid of sub-pixel centres; a pixel where at least half of them hit
-    /// the mesh gets the mean z-depth of those hits and the normalised mean of their normals,
-    /// the others none (`0`, zero normal). What a rendering that blends a pixel's whole
-    /// footprint can be held to where the depth changes within a pixel (an occluding edge, a
-    /// surface seen at a grazing angle); `n = 1` is [`MeshRaycaster::render`]. Errors when
-    /// `n` is 0.
-    pub fn render_area(&self, camera: &Camera, n: u32) -> Result<MeshDepth> {
-        if n == 0 {
-            return Err(EvalError::InvalidArgument(
-                "render_area needs at least one ray per pixel".into(),
-            ));
-        }
-        Ok(self.render_grid(camera, n))
-    }
-
-    /// [`MeshRaycaster::render_area`] for `n >= 1` (`n = 1`: one ray through each pixel
-    /// centre).
-    fn render_grid(&self, camera: &Camera, n: u32) -> MeshDepth {
-        let (w, h) = (camera.width as usize, camera.height as usize);
-        let m = camera.world_to_camera;
-        let mut depth = vec![0.0; w * h];
-        let mut normal = vec![Vec3::ZERO; w * h];
-        let need = (n * n).div_ceil(2) as usize;
-        depth
-            .par_chunks_mut(w.max(1))
-            .zip(normal.par_chunks_mut(w.max(1)))
-            .enumerate()
-            .for_each(|(j, (depth, normal))| {
-                for i in 0..w {
-                    let (mut zs, mut ns, mut hits) = (0.0f32, Vec3::ZERO, 0usize);
-                    for a in 0..n {
-                        for b in 0..n {
-                            let u = i as f32 + (a as f32 + 0.5) / n as f32;
-                            let v = j as f32 + (b as f32 + 0.5) / n as f32;
-                            let (o, d) = camera.ray(u, v);
-                            if let Some((t, nn)) = self.target.first_hit(o, d) {
-                                let z = m.transform_point3(o + d * t).z;
-                                if z > 0.0 && z.is_finite() {
-                                    zs += z;
-                                    ns += m.transform_vector3(nn);
-                                    hits += 1;
-                                }
-                            }
-                        }
-                    }
-                    if hits >= need {
-                        depth[i] = zs / hits as f32;
-                        normal[i] = ns.normalize_or_zero();
-                    }
-                }
-            });
-        MeshDepth {
-            width: w,
-            height: h,
-            depth,
-            normal,
-            focal: camera.fx,
-        }
-    }
-}
+use crate::error::Result;
 
 /// The probabilities of [`DepthMetrics::depth_signed_quantiles`].
 pub const DEPTH_QUANTILES: [f64; 5] = [0.05, 0.25, 0.5, 0.75, 0.95];
@@ -267,17 +100,15 @@ impl DepthComparison {
         let n = truth.width * truth.height;
         let size = format!("{}x{} = {n}", truth.width, truth.height);
         if depth.len() != n {
-            return Err(EvalError::size("rendered depth", size, depth.len()));
+            return Err(MeshError::size("rendered depth", size, depth.len()).into());
         }
         if normal.len() != 3 * n {
-            return Err(EvalError::size(
-                "rendered normals",
-                format!("3 x {size}"),
-                normal.len(),
-            ));
+            return Err(
+                MeshError::size("rendered normals", format!("3 x {size}"), normal.len()).into(),
+            );
         }
         if select.len() != n {
-            return Err(EvalError::size("pixel selection", size, select.len()));
+            return Err(MeshError::size("pixel selection", size, select.len()).into());
         }
         let edges = truth.occluding_edges(EDGE_FOOTPRINTS);
         let occluders = truth.occluders(EDGE_FOOTPRINTS);
@@ -356,6 +187,9 @@ impl DepthComparison {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use gtsr_data::Camera;
+    use gtsr_data::ply::TriMesh;
+    use gtsr_mesh::raycast::MeshRaycaster;
 
     /// A square in the plane z = `z` (world), side 4, facing -z.
     fn square(z: f32) -> TriMesh {
@@ -392,7 +226,7 @@ mod tests {
     #[test]
     fn a_sphere_is_hit_at_its_distance_minus_its_radius() {
         let (dist, r) = (3.0, 0.5);
-        let mesh = crate::mesh::icosphere(Vec3::new(0.0, 0.0, dist), r, 5);
+        let mesh = gtsr_mesh::mesh::icosphere(Vec3::new(0.0, 0.0, dist), r, 5);
         let cam = camera_on_axis(32);
         let truth = MeshRaycaster::new(&mesh, "sphere").unwrap().render(&cam);
         let centre = 16 * 32 + 16;
@@ -489,7 +323,7 @@ mod tests {
 
     #[test]
     fn the_outline_is_an_occluding_edge_and_its_errors_are_kept_apart() {
-        let mesh = crate::mesh::icosphere(Vec3::new(0.0, 0.0, 3.0), 0.5, 5);
+        let mesh = gtsr_mesh::mesh::icosphere(Vec3::new(0.0, 0.0, 3.0), 0.5, 5);
         let cam = camera_on_axis(32);
         let truth = MeshRaycaster::new(&mesh, "sphere").unwrap().render(&cam);
         let edges = truth.occluding_edges(EDGE_FOOTPRINTS);
@@ -603,7 +437,7 @@ mod tests {
         // A sphere: inside its outline the area depth is the mean over the pixel, nearer than
         // the centre ray where the surface turns away from the camera; the coverage rule
         // keeps pixels at least half covered.
-        let sphere = crate::mesh::icosphere(Vec3::new(0.0, 0.0, 3.0), 0.5, 5);
+        let sphere = gtsr_mesh::mesh::icosphere(Vec3::new(0.0, 0.0, 3.0), 0.5, 5);
         let cam = camera_on_axis(32);
         let caster = MeshRaycaster::new(&sphere, "sphere").unwrap();
         let (centre, area) = (caster.render(&cam), caster.render_area(&cam, 8).unwrap());

@@ -4,7 +4,7 @@
 //! # Mesh metrics
 //!
 //! `samples` points are drawn area-uniformly on each mesh (seeded, see
-//! [`crate::mesh::sample_surface`]); each sample's distance to the *other mesh* is the exact
+//! [`gtsr_mesh::mesh::sample_surface`]); each sample's distance to the *other mesh* is the exact
 //! Euclidean distance to its closest triangle (parry3d BVH, not a nearest-sample search).
 //! `chamfer = (accuracy + completeness) / 2` with `accuracy` the mean predicted-to-ground-truth
 //! distance and `completeness` the mean ground-truth-to-predicted distance.
@@ -22,12 +22,13 @@
 use glam::Vec3;
 use gtsr_data::Camera;
 use gtsr_data::ply::TriMesh;
-use parry3d::query::{PointQueryWithLocation, RayCast};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{EvalError, Result};
-use crate::mesh::{face_normal_scaled, sample_surface, validate};
+use crate::error::Result;
+use gtsr_mesh::MeshError;
+use gtsr_mesh::mesh::{SurfaceSamples, sample_surface};
+use gtsr_mesh::raycast::MeshBvh;
 
 /// Mesh-to-mesh metrics (distances in mesh units).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -84,137 +85,9 @@ fn one() -> f64 {
     1.0
 }
 
-/// The parry3d ray from `o` along `d`.
-fn parry_ray(o: Vec3, d: Vec3) -> parry3d::query::Ray {
-    parry3d::query::Ray::new(
-        parry3d::math::Vector::new(o.x, o.y, o.z),
-        parry3d::math::Vector::new(d.x, d.y, d.z),
-    )
-}
-
-/// A mesh prepared for exact closest-point queries and ray casts.
-pub(crate) struct Target<'a> {
-    mesh: &'a TriMesh,
-    bvh: parry3d::shape::TriMesh,
-    /// Original triangle index of each triangle kept in `bvh`.
-    original: Vec<u32>,
-}
-
-impl<'a> Target<'a> {
-    pub(crate) fn new(mesh: &'a TriMesh, what: &str) -> Result<Self> {
-        validate(mesh, what)?;
-        let mut original = Vec::with_capacity(mesh.triangles.len());
-        let mut tris = Vec::with_capacity(mesh.triangles.len());
-        for (k, &t) in mesh.triangles.iter().enumerate() {
-            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-            let scale = (b - a)
-                .length_squared()
-                .max((c - b).length_squared())
-                .max((a - c).length_squared());
-            let n2 = (b - a).cross(c - a).length_squared();
-            // Drop degenerate (zero-area) triangles: they add no surface.
-            if n2.is_finite() && n2 > 1e-14 * scale * scale {
-                original.push(k as u32);
-                tris.push(t);
-            }
-        }
-        if tris.is_empty() {
-            return Err(EvalError::EmptyMesh {
-                what: what.to_string(),
-            });
-        }
-        let verts = mesh
-            .positions
-            .iter()
-            .map(|p| parry3d::math::Vector::new(p.x, p.y, p.z))
-            .collect();
-        let bvh =
-            parry3d::shape::TriMesh::new(verts, tris).map_err(|e| EvalError::InvalidMesh {
-                what: what.to_string(),
-                message: e.to_string(),
-            })?;
-        Ok(Target {
-            mesh,
-            bvh,
-            original,
-        })
-    }
-
-    /// Whether the segment from `p` (on the mesh, with the unit normal `n` of its triangle) to
-    /// `eye` is free of the mesh. The ray starts `eps` off the surface on the eye's side, so the
-    /// sample's own triangle does not block it.
-    fn sees(&self, p: Vec3, n: Vec3, eye: Vec3, eps: f32) -> bool {
-        let to_eye = eye - p;
-        let dist = to_eye.length();
-        if dist <= 2.0 * eps {
-            return true;
-        }
-        let d = to_eye / dist;
-        let side = if n.dot(d) >= 0.0 { n } else { -n };
-        let o = p + side * eps + d * eps;
-        self.bvh
-            .cast_local_ray(&parry_ray(o, d), dist - 2.0 * eps, false)
-            .is_none()
-    }
-
-    /// The first hit of the ray from `o` along the unit direction `d`: the distance along the
-    /// ray and the unit normal of the triangle hit, turned to face the ray's origin.
-    pub(crate) fn first_hit(&self, o: Vec3, d: Vec3) -> Option<(f32, Vec3)> {
-        let hit = self
-            .bvh
-            .cast_local_ray_and_get_normal(&parry_ray(o, d), f32::MAX, false)?;
-        let n = Vec3::new(hit.normal.x, hit.normal.y, hit.normal.z).normalize_or_zero();
-        let n = if n.dot(d) > 0.0 { -n } else { n };
-        (hit.time_of_impact.is_finite() && n != Vec3::ZERO).then_some((hit.time_of_impact, n))
-    }
-
-    /// Exact distance from `p` to the mesh and the unit normal of the closest triangle.
-    fn closest(&self, p: Vec3) -> (f32, Vec3) {
-        let q = parry3d::math::Vector::new(p.x, p.y, p.z);
-        let (proj, (tri, _)) = self.bvh.project_local_point_and_get_location(q, false);
-        let d = Vec3::new(proj.point.x - p.x, proj.point.y - p.y, proj.point.z - p.z).length();
-        let t = self.mesh.triangles[self.original[tri as usize] as usize];
-        (d, face_normal_scaled(self.mesh, t).normalize_or_zero())
-    }
-}
-
-/// Exact closest-point queries against a mesh, signed by the side of the closest triangle: for
-/// diagnosing where reconstructed points lie relative to a ground truth.
-pub struct SignedDistance<'a> {
-    target: Target<'a>,
-}
-
-impl<'a> SignedDistance<'a> {
-    /// Prepares `mesh` (`what` names it in errors; invalid or empty meshes are errors).
-    pub fn new(mesh: &'a TriMesh, what: &str) -> Result<Self> {
-        Ok(SignedDistance {
-            target: Target::new(mesh, what)?,
-        })
-    }
-
-    /// The distance from `p` to the mesh, positive on the side the closest triangle's winding
-    /// normal points to (outside, for a closed outward-wound mesh), and that unit normal.
-    pub fn query(&self, p: Vec3) -> (f32, Vec3) {
-        let q = parry3d::math::Vector::new(p.x, p.y, p.z);
-        let (proj, (tri, _)) = self
-            .target
-            .bvh
-            .project_local_point_and_get_location(q, false);
-        let c = Vec3::new(proj.point.x, proj.point.y, proj.point.z);
-        let t = self.target.mesh.triangles[self.target.original[tri as usize] as usize];
-        let n = face_normal_scaled(self.target.mesh, t).normalize_or_zero();
-        let d = (p - c).length();
-        (if (p - c).dot(n) < 0.0 { -d } else { d }, n)
-    }
-}
-
 /// Per sample: the distance to `target` and `|cos|` between the sample's normal and the
 /// closest triangle's.
-fn closest_all(
-    samples: &crate::mesh::SurfaceSamples,
-    target: &Target,
-    what: &str,
-) -> Result<Vec<(f32, f32)>> {
+fn closest_all(samples: &SurfaceSamples, target: &MeshBvh, what: &str) -> Result<Vec<(f32, f32)>> {
     let out: Vec<(f32, f32)> = samples
         .points
         .par_iter()
@@ -226,9 +99,10 @@ fn closest_all(
         .collect();
     let bad = out.iter().filter(|(d, _)| !d.is_finite()).count();
     if bad > 0 {
-        return Err(EvalError::NonFinite {
+        return Err(MeshError::NonFinite {
             what: format!("{bad} closest-point distances from {what} samples"),
-        });
+        }
+        .into());
     }
     Ok(out)
 }
@@ -303,18 +177,17 @@ fn chamfer_impl(
     seed: u64,
 ) -> Result<(MeshMetrics, Option<MeshMetrics>)> {
     if samples == 0 {
-        return Err(EvalError::InvalidArgument(
-            "chamfer needs at least one sample".into(),
-        ));
+        return Err(MeshError::InvalidArgument("chamfer needs at least one sample".into()).into());
     }
     if !(threshold > 0.0 && threshold.is_finite()) {
-        return Err(EvalError::InvalidArgument(format!(
+        return Err(MeshError::InvalidArgument(format!(
             "F-score threshold {threshold} must be positive and finite"
-        )));
+        ))
+        .into());
     }
     let (pred_target, gt_target) = rayon::join(
-        || Target::new(pred, "predicted"),
-        || Target::new(gt, "ground-truth"),
+        || MeshBvh::new(pred, "predicted"),
+        || MeshBvh::new(gt, "ground-truth"),
     );
     let (pred_target, gt_target) = (pred_target?, gt_target?);
     let pred_samples = sample_surface(pred, samples, seed, "predicted")?;
@@ -332,11 +205,12 @@ fn chamfer_impl(
     let to_hull = match hull {
         Some((hull, blind_at)) => {
             if !(blind_at > 0.0 && blind_at.is_finite()) {
-                return Err(EvalError::InvalidArgument(format!(
+                return Err(MeshError::InvalidArgument(format!(
                     "hull-blind threshold {blind_at} must be positive and finite"
-                )));
+                ))
+                .into());
             }
-            let target = Target::new(hull, "masks' hull")?;
+            let target = MeshBvh::new(hull, "masks' hull")?;
             Some((closest_all(&gt_samples, &target, "ground-truth")?, blind_at))
         }
         None => None,
@@ -403,22 +277,24 @@ fn hull_blind_split(
 
 /// Which ground-truth samples at least `min_eyes` of `eyes` see; errors as [`chamfer_seen`].
 fn seen_flags(
-    gt_samples: &crate::mesh::SurfaceSamples,
-    gt_target: &Target,
+    gt_samples: &SurfaceSamples,
+    gt_target: &MeshBvh,
     gt: &TriMesh,
     eyes: &[Vec3],
     min_eyes: usize,
 ) -> Result<Vec<bool>> {
     if eyes.is_empty() || eyes.iter().any(|e| !e.is_finite()) {
-        return Err(EvalError::InvalidArgument(
+        return Err(MeshError::InvalidArgument(
             "chamfer_seen needs at least one eye, all finite".into(),
-        ));
+        )
+        .into());
     }
     if min_eyes == 0 || min_eyes > eyes.len() {
-        return Err(EvalError::InvalidArgument(format!(
+        return Err(MeshError::InvalidArgument(format!(
             "chamfer_seen: a sample must be seen by 1 to {} eyes, not {min_eyes}",
             eyes.len()
-        )));
+        ))
+        .into());
     }
     let (lo, hi) = gt.bounds();
     let eps = 1e-5 * (hi - lo).length().max(f32::MIN_POSITIVE);
@@ -435,10 +311,11 @@ fn seen_flags(
         })
         .collect();
     if !keep.contains(&true) {
-        return Err(EvalError::InvalidArgument(format!(
+        return Err(MeshError::InvalidArgument(format!(
             "no ground-truth sample is seen by {min_eyes} of the {} eyes",
             eyes.len()
-        )));
+        ))
+        .into());
     }
     Ok(keep)
 }
@@ -461,29 +338,21 @@ pub fn chamfer_seen(
     threshold: f32,
     seed: u64,
 ) -> Result<MeshMetrics> {
-    Ok(chamfer_seen_and_whole(pred, gt, eyes, min_eyes, samples, threshold, seed)?.0)
+    Ok(chamfer_seen_and_whole(pred, gt, (eyes, min_eyes), samples, threshold, seed)?.0)
 }
 
 /// [`chamfer_seen`] and [`chamfer`] together, `(seen, whole)`, from one set of samples: the
-/// predicted side and the distances are computed once.
+/// predicted side and the distances are computed once. `seen_from` is `(eyes, min_eyes)` of
+/// [`chamfer_seen`].
 pub fn chamfer_seen_and_whole(
     pred: &TriMesh,
     gt: &TriMesh,
-    eyes: &[Vec3],
-    min_eyes: usize,
+    seen_from: (&[Vec3], usize),
     samples: usize,
     threshold: f32,
     seed: u64,
 ) -> Result<(MeshMetrics, MeshMetrics)> {
-    let (whole, seen) = chamfer_impl(
-        pred,
-        gt,
-        Some((eyes, min_eyes)),
-        None,
-        samples,
-        threshold,
-        seed,
-    )?;
+    let (whole, seen) = chamfer_impl(pred, gt, Some(seen_from), None, samples, threshold, seed)?;
     Ok((seen.expect("eyes were given"), whole))
 }
 
@@ -500,7 +369,7 @@ pub const SCORE_SAMPLES: usize = 100_000;
 pub const HULL_BLIND_RADII: f32 = 0.01;
 
 /// A reconstructed mesh against a scene's ground truth as gtsr-train, `cargo xtask
-/// bench-recon` and `cargo xtask fusion-ceiling` report it, `(seen, whole)`: the seen ground
+/// bench-recon` and `cargo lab fusion-ceiling` report it, `(seen, whole)`: the seen ground
 /// truth is what [`SEEN_MIN_EYES`] of the training `cameras`' centres see (unblocked
 /// segments), [`SCORE_SAMPLES`] samples per mesh with seed 0, and the F-score threshold 1 % of
 /// the ground truth's radius (half the longest side of its box).
@@ -559,19 +428,21 @@ impl<'a> ImageRef<'a> {
     fn check(&self, what: &str) -> Result<()> {
         let n = self.width * self.height * self.channels;
         if n == 0 || self.data.len() != n {
-            return Err(EvalError::size(
+            return Err(MeshError::size(
                 what,
                 format!(
                     "{}x{}x{} = {n} values (non-zero)",
                     self.width, self.height, self.channels
                 ),
                 self.data.len(),
-            ));
+            )
+            .into());
         }
         if self.data.iter().any(|v| !v.is_finite()) {
-            return Err(EvalError::NonFinite {
+            return Err(MeshError::NonFinite {
                 what: what.to_string(),
-            });
+            }
+            .into());
         }
         Ok(())
     }
@@ -581,25 +452,27 @@ fn check_pair(pred: &ImageRef, gt: &ImageRef, mask: Option<&[f32]>) -> Result<()
     pred.check("predicted image")?;
     gt.check("ground-truth image")?;
     if (pred.width, pred.height, pred.channels) != (gt.width, gt.height, gt.channels) {
-        return Err(EvalError::size(
+        return Err(MeshError::size(
             "predicted image",
             format!(
                 "{}x{}x{} (as the ground truth)",
                 gt.width, gt.height, gt.channels
             ),
             format!("{}x{}x{}", pred.width, pred.height, pred.channels),
-        ));
+        )
+        .into());
     }
     if let Some(m) = mask {
         if m.len() != gt.width * gt.height {
-            return Err(EvalError::size(
+            return Err(MeshError::size(
                 "mask",
                 format!("{}x{} = {}", gt.width, gt.height, gt.width * gt.height),
                 m.len(),
-            ));
+            )
+            .into());
         }
         if !m.iter().any(|&v| v > 0.5) {
-            return Err(EvalError::EmptyMask);
+            return Err(MeshError::EmptyMask.into());
         }
     }
     Ok(())

@@ -5,8 +5,9 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::depth::DepthMetrics;
-use crate::error::{EvalError, Result, write_atomic};
+use crate::error::{Result, write_atomic};
 use crate::metrics::MeshMetrics;
+use gtsr_mesh::MeshError;
 
 /// What a training run writes to `metrics.json`, and what the benchmarks read back: one type
 /// for both. Fields added after the first runs read as their defaults from older files.
@@ -82,16 +83,17 @@ pub struct RunMetrics {
 impl RunMetrics {
     /// Reads a run's `metrics.json`, naming the file in the error.
     pub fn read(path: &Path) -> Result<RunMetrics> {
-        let text = std::fs::read_to_string(path).map_err(|e| EvalError::io(path, e))?;
+        let text = std::fs::read_to_string(path).map_err(|e| MeshError::io(path, e))?;
         serde_json::from_str(&text).map_err(|e| {
-            EvalError::InvalidArgument(format!("{}: not a run's metrics ({e})", path.display()))
+            MeshError::InvalidArgument(format!("{}: not a run's metrics ({e})", path.display()))
+                .into()
         })
     }
 
     /// Writes it as pretty JSON, atomically.
     pub fn write(&self, path: &Path) -> Result<()> {
         let text = serde_json::to_string_pretty(self)
-            .map_err(|e| EvalError::InvalidArgument(format!("serialising metrics: {e}")))?;
+            .map_err(|e| MeshError::InvalidArgument(format!("serialising metrics: {e}")))?;
         write_atomic(path, text.as_bytes())
     }
 }

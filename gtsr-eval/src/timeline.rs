@@ -4,12 +4,16 @@
 //! chamfer panel also draws the mesh fused from the rendered depth alone, dashed, and the masks
 //! alone, dotted).
 
+use std::ops::Range;
 use std::path::Path;
 
+use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{EvalError, Result, write_atomic};
+use gtsr_mesh::MeshError;
 
 /// One evaluation during a run.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -183,10 +187,13 @@ impl Timeline {
     /// Reads a file written by [`Timeline::write_csv`], or by a version without some of the
     /// [`OPTIONAL_COLUMNS`] (read as missing). Errors name the file and line.
     pub fn read_csv(path: &Path) -> Result<Timeline> {
-        let text = std::fs::read_to_string(path).map_err(|e| EvalError::io(path, e))?;
-        let err = |line: usize, message: String| EvalError::Parse {
-            path: path.to_path_buf(),
-            message: format!("line {line}: {message}"),
+        let text = std::fs::read_to_string(path).map_err(|e| MeshError::io(path, e))?;
+        let err = |line: usize, message: String| -> EvalError {
+            MeshError::Parse {
+                path: path.to_path_buf(),
+                message: format!("line {line}: {message}"),
+            }
+            .into()
         };
         let mut lines = text.lines().enumerate();
         let header: Vec<&str> = match lines.next() {
@@ -265,6 +272,26 @@ enum Stroke {
     Dotted,
 }
 
+impl Stroke {
+    /// The lengths of a dash and of the gap after it in pixels; `None` for a solid line.
+    fn dashes(self) -> Option<(i32, i32)> {
+        match self {
+            Stroke::Solid => None,
+            Stroke::Dashed => Some((8, 6)),
+            Stroke::Dotted => Some((2, 4)),
+        }
+    }
+
+    /// The length of the legend's sample in pixels: as long as the stroke's first dash.
+    fn sample(self) -> i32 {
+        match self {
+            Stroke::Solid => 20,
+            Stroke::Dashed => 8,
+            Stroke::Dotted => 3,
+        }
+    }
+}
+
 /// One curve per series of a [`LogPanel`]: one optional value of each point.
 struct LogCurve {
     get: fn(&TimelinePoint) -> Option<f64>,
@@ -327,6 +354,58 @@ fn range_of(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
         0.5 * lo.abs().max(1.0)
     };
     Some((lo - pad, hi + pad))
+}
+
+/// The chart of one panel of [`plot_png`]: training time against a value.
+type Chart<'a, 'b> =
+    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// The chart of one panel on `area`, captioned, with its axes drawn: training time over `t`
+/// on x, the value over `y` on y, described as `y_desc` and labelled by `y_format` (plotters'
+/// labels when `None`), with `y_label_px` pixels for the y labels. Errors as plotters' text.
+fn panel_chart<'a, 'b>(
+    area: &'a DrawingArea<BitMapBackend<'b>, Shift>,
+    caption: &str,
+    y_label_px: u32,
+    (t, y): (Range<f64>, Range<f64>),
+    y_desc: &str,
+    y_format: Option<&dyn Fn(&f64) -> String>,
+) -> std::result::Result<Chart<'a, 'b>, String> {
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, ("sans-serif", 24))
+        .margin(16)
+        .x_label_area_size(48)
+        .y_label_area_size(y_label_px)
+        .build_cartesian_2d(t, y)
+        .map_err(|e| e.to_string())?;
+    let x_format = |v: &f64| format!("{v:.0}");
+    let mut mesh = chart.configure_mesh();
+    mesh.x_desc("training time (s)")
+        .x_labels(6)
+        .x_label_formatter(&x_format)
+        .y_desc(y_desc);
+    if let Some(y_format) = y_format {
+        mesh.y_label_formatter(y_format);
+    }
+    mesh.label_style(("sans-serif", 16))
+        .draw()
+        .map_err(|e| e.to_string())?;
+    Ok(chart)
+}
+
+/// Draws the legend of `chart` at `position`. Errors as plotters' text.
+fn draw_legend<'a, 'b: 'a>(
+    chart: &mut Chart<'a, 'b>,
+    position: SeriesLabelPosition,
+) -> std::result::Result<(), String> {
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 16))
+        .position(position)
+        .draw()
+        .map_err(|e| e.to_string())
 }
 
 /// Plot size in pixels, up to three panels.
@@ -418,22 +497,15 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
         let panels = root.split_evenly((1, 1 + log_panels.len()));
         let colour = |k: usize| Palette99::pick(k).to_rgba();
         {
-            let mut chart = ChartBuilder::on(&panels[0])
-                .caption("PSNR vs training time", ("sans-serif", 24))
-                .margin(16)
-                .x_label_area_size(48)
-                .y_label_area_size(64)
-                .build_cartesian_2d(t0..t1, psnr_range.0..psnr_range.1)
-                .map_err(|e| plot_err(e.to_string()))?;
-            chart
-                .configure_mesh()
-                .x_desc("training time (s)")
-                .x_labels(6)
-                .x_label_formatter(&|v| format!("{v:.0}"))
-                .y_desc("PSNR (dB)")
-                .label_style(("sans-serif", 16))
-                .draw()
-                .map_err(|e| plot_err(e.to_string()))?;
+            let mut chart = panel_chart(
+                &panels[0],
+                "PSNR vs training time",
+                64,
+                (t0..t1, psnr_range.0..psnr_range.1),
+                "PSNR (dB)",
+                None,
+            )
+            .map_err(plot_err)?;
             for (k, (name, t)) in series.iter().enumerate() {
                 let c = colour(k);
                 let finite = |p: &&TimelinePoint| p.psnr.is_finite() && p.train_seconds.is_finite();
@@ -457,14 +529,7 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
                         PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
                     });
             }
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.8))
-                .border_style(BLACK)
-                .label_font(("sans-serif", 16))
-                .position(SeriesLabelPosition::LowerRight)
-                .draw()
-                .map_err(|e| plot_err(e.to_string()))?;
+            draw_legend(&mut chart, SeriesLabelPosition::LowerRight).map_err(plot_err)?;
         }
         for (panel, area) in log_panels.iter().zip(&panels[1..]) {
             let values = panel.values(all());
@@ -481,23 +546,15 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
                 })
                 .count();
             hi += (hi - lo) * legend_headroom(entries, area.dim_in_pixel().1);
-            let mut chart = ChartBuilder::on(area)
-                .caption(panel.caption, ("sans-serif", 24))
-                .margin(16)
-                .x_label_area_size(48)
-                .y_label_area_size(80)
-                .build_cartesian_2d(t0..t1, lo..hi)
-                .map_err(|e| plot_err(e.to_string()))?;
-            chart
-                .configure_mesh()
-                .x_desc("training time (s)")
-                .x_labels(6)
-                .x_label_formatter(&|v| format!("{v:.0}"))
-                .y_desc(panel.y_desc)
-                .y_label_formatter(&|v| format!("{:.1e}", 10f64.powf(*v)))
-                .label_style(("sans-serif", 16))
-                .draw()
-                .map_err(|e| plot_err(e.to_string()))?;
+            let mut chart = panel_chart(
+                area,
+                panel.caption,
+                80,
+                (t0..t1, lo..hi),
+                panel.y_desc,
+                Some(&|v| format!("{:.1e}", 10f64.powf(*v))),
+            )
+            .map_err(plot_err)?;
             for (k, (name, t)) in series.iter().enumerate() {
                 let c = colour(k);
                 for curve in &panel.curves {
@@ -527,29 +584,16 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
                     }
                     let label = format!("{name}{}", curve.suffix);
                     let style = c.stroke_width(2);
-                    let drawn = match curve.stroke {
-                        Stroke::Solid => {
-                            chart.draw_series(LineSeries::new(pts.iter().copied(), style))
-                        }
-                        Stroke::Dashed => chart.draw_series(DashedLineSeries::new(
+                    let drawn = match curve.stroke.dashes() {
+                        None => chart.draw_series(LineSeries::new(pts.iter().copied(), style)),
+                        Some((dash, gap)) => chart.draw_series(DashedLineSeries::new(
                             pts.iter().copied(),
-                            8,
-                            6,
-                            style,
-                        )),
-                        Stroke::Dotted => chart.draw_series(DashedLineSeries::new(
-                            pts.iter().copied(),
-                            2,
-                            4,
+                            dash,
+                            gap,
                             style,
                         )),
                     };
-                    // The legend's sample: as long as the stroke's first dash.
-                    let sample = match curve.stroke {
-                        Stroke::Solid => 20,
-                        Stroke::Dashed => 8,
-                        Stroke::Dotted => 3,
-                    };
+                    let sample = curve.stroke.sample();
                     drawn
                         .map_err(|e| plot_err(e.to_string()))?
                         .label(label)
@@ -563,14 +607,7 @@ pub fn plot_png(path: &Path, series: &[(&str, &Timeline)]) -> Result<()> {
                     }
                 }
             }
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.8))
-                .border_style(BLACK)
-                .label_font(("sans-serif", 16))
-                .position(SeriesLabelPosition::UpperRight)
-                .draw()
-                .map_err(|e| plot_err(e.to_string()))?;
+            draw_legend(&mut chart, SeriesLabelPosition::UpperRight).map_err(plot_err)?;
         }
         root.present().map_err(|e| plot_err(e.to_string()))?;
     }

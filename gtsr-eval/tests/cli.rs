@@ -1,7 +1,7 @@
 use std::process::Command;
 
 use glam::Vec3;
-use gtsr_eval::mesh::icosphere;
+use gtsr_mesh::mesh::icosphere;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_gtsr-eval"))
@@ -92,7 +92,7 @@ fn images_subcommand_compares_folders() {
 
 #[test]
 fn plot_subcommand_writes_a_png() {
-    use gtsr_eval::timeline::{Timeline, TimelinePoint};
+    use gtsr_eval::{Timeline, TimelinePoint};
     let dir = tempfile::tempdir().unwrap();
     let csv = dir.path().join("run.csv");
     let mut t = Timeline::new();

@@ -1,5 +1,6 @@
-use gtsr_eval::mesh::SplitMix64;
 use gtsr_eval::{EvalError, ImageRef, psnr, ssim};
+use gtsr_mesh::MeshError;
+use gtsr_mesh::mesh::SplitMix64;
 
 fn random_image(w: usize, h: usize, c: usize, seed: u64) -> Vec<f32> {
     let mut rng = SplitMix64::new(seed);
@@ -144,29 +145,44 @@ fn image_errors() {
     let a = vec![0.5f32; 12];
     let b = vec![0.5f32; 9];
     let e = psnr(ImageRef::new(2, 2, 3, &a), ImageRef::new(3, 1, 3, &b), None);
-    assert!(matches!(e, Err(EvalError::SizeMismatch { .. })));
+    assert!(matches!(
+        e,
+        Err(EvalError::Input(MeshError::SizeMismatch { .. }))
+    ));
     let e = ssim(ImageRef::new(2, 2, 3, &a), ImageRef::new(2, 2, 3, &b), None);
-    assert!(matches!(e, Err(EvalError::SizeMismatch { .. })));
+    assert!(matches!(
+        e,
+        Err(EvalError::Input(MeshError::SizeMismatch { .. }))
+    ));
     let e = psnr(
         ImageRef::new(2, 2, 3, &a),
         ImageRef::new(2, 2, 3, &a),
         Some(&[0.0; 4]),
     );
-    assert!(matches!(e, Err(EvalError::EmptyMask)));
+    assert!(matches!(e, Err(EvalError::Input(MeshError::EmptyMask))));
     let e = ssim(
         ImageRef::new(2, 2, 3, &a),
         ImageRef::new(2, 2, 3, &a),
         Some(&[1.0; 3]),
     );
-    assert!(matches!(e, Err(EvalError::SizeMismatch { .. })));
+    assert!(matches!(
+        e,
+        Err(EvalError::Input(MeshError::SizeMismatch { .. }))
+    ));
     let mut n = a.clone();
     n[5] = f32::NAN;
     let e = psnr(ImageRef::new(2, 2, 3, &n), ImageRef::new(2, 2, 3, &a), None);
-    assert!(matches!(e, Err(EvalError::NonFinite { .. })));
+    assert!(matches!(
+        e,
+        Err(EvalError::Input(MeshError::NonFinite { .. }))
+    ));
     let e = ssim(
         ImageRef::new(0, 0, 3, &[]),
         ImageRef::new(0, 0, 3, &[]),
         None,
     );
-    assert!(matches!(e, Err(EvalError::SizeMismatch { .. })));
+    assert!(matches!(
+        e,
+        Err(EvalError::Input(MeshError::SizeMismatch { .. }))
+    ));
 }

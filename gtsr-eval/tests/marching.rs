@@ -1,7 +1,7 @@
 use glam::Vec3;
 use gtsr_eval::chamfer;
-use gtsr_eval::marching::{Grid, case_triangle_count, marching_cubes, table_fallbacks};
-use gtsr_eval::mesh::{SplitMix64, component_sizes, icosphere, is_closed};
+use gtsr_mesh::marching::{Grid, case_triangle_count, marching_cubes, table_fallbacks};
+use gtsr_mesh::mesh::{SplitMix64, component_sizes, icosphere, is_closed};
 
 fn sphere_grid(r: f32, voxel: f32) -> Grid {
     let n = (2.6 * r / voxel).ceil() as usize + 1;

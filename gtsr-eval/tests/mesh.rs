@@ -1,7 +1,9 @@
 use glam::Vec3;
 use gtsr_data::ply::TriMesh;
-use gtsr_eval::mesh::{component_sizes, icosphere, is_closed, sample_surface, surface_area};
-use gtsr_eval::{EvalError, chamfer, chamfer_seen, largest_component, weld};
+use gtsr_eval::{EvalError, chamfer, chamfer_seen};
+use gtsr_mesh::MeshError;
+use gtsr_mesh::mesh::{component_sizes, icosphere, is_closed, sample_surface, surface_area};
+use gtsr_mesh::mesh::{largest_component, weld};
 
 #[test]
 fn icosphere_is_closed_outward_and_close_to_the_sphere() {
@@ -254,11 +256,11 @@ fn empty_and_invalid_meshes_are_errors() {
     let empty = TriMesh::default();
     assert!(matches!(
         chamfer(&empty, &good, 100, 0.1, 0),
-        Err(EvalError::EmptyMesh { .. })
+        Err(EvalError::Input(MeshError::EmptyMesh { .. }))
     ));
     assert!(matches!(
         chamfer(&good, &empty, 100, 0.1, 0),
-        Err(EvalError::EmptyMesh { .. })
+        Err(EvalError::Input(MeshError::EmptyMesh { .. }))
     ));
     let flat = TriMesh {
         positions: vec![Vec3::ZERO, Vec3::X, Vec3::X * 2.0],
@@ -266,7 +268,7 @@ fn empty_and_invalid_meshes_are_errors() {
     };
     assert!(matches!(
         chamfer(&flat, &good, 100, 0.1, 0),
-        Err(EvalError::EmptyMesh { .. })
+        Err(EvalError::Input(MeshError::EmptyMesh { .. }))
     ));
     let out_of_range = TriMesh {
         positions: vec![Vec3::ZERO],
@@ -274,21 +276,21 @@ fn empty_and_invalid_meshes_are_errors() {
     };
     assert!(matches!(
         chamfer(&out_of_range, &good, 100, 0.1, 0),
-        Err(EvalError::InvalidMesh { .. })
+        Err(EvalError::Input(MeshError::InvalidMesh { .. }))
     ));
     let mut nan = good.clone();
     nan.positions[0].x = f32::NAN;
     assert!(matches!(
         chamfer(&nan, &good, 100, 0.1, 0),
-        Err(EvalError::InvalidMesh { .. })
+        Err(EvalError::Input(MeshError::InvalidMesh { .. }))
     ));
     assert!(matches!(
         chamfer(&good, &good, 0, 0.1, 0),
-        Err(EvalError::InvalidArgument(_))
+        Err(EvalError::Input(MeshError::InvalidArgument(_)))
     ));
     assert!(matches!(
         chamfer(&good, &good, 10, f32::NAN, 0),
-        Err(EvalError::InvalidArgument(_))
+        Err(EvalError::Input(MeshError::InvalidArgument(_)))
     ));
     let e = chamfer(&empty, &good, 100, 0.1, 0).unwrap_err().to_string();
     assert!(e.contains("predicted"), "{e}");
@@ -332,11 +334,11 @@ fn the_hull_blind_split_measures_what_the_masks_miss() {
 #[test]
 fn signed_distance_is_positive_outside_an_outward_mesh() {
     let sphere = icosphere(Vec3::ZERO, 1.0, 4);
-    let sd = gtsr_eval::SignedDistance::new(&sphere, "sphere").unwrap();
+    let sd = gtsr_mesh::raycast::SignedDistance::new(&sphere, "sphere").unwrap();
     let (out, n) = sd.query(Vec3::new(0.0, 0.0, 1.5));
     assert!((out - 0.5).abs() < 5e-3, "{out}");
     assert!(n.z > 0.99, "{n}");
     let (inside, _) = sd.query(Vec3::new(0.0, 0.7, 0.0));
     assert!((inside + 0.3).abs() < 5e-3, "{inside}");
-    assert!(gtsr_eval::SignedDistance::new(&TriMesh::default(), "empty").is_err());
+    assert!(gtsr_mesh::raycast::SignedDistance::new(&TriMesh::default(), "empty").is_err());
 }

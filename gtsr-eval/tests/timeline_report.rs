@@ -1,7 +1,5 @@
-use gtsr_eval::report::{
-    ReportRow, format_duration, markdown_table, seed_summary_table, write_markdown,
-};
-use gtsr_eval::timeline::{FINAL_LABEL, Timeline, TimelinePoint, plot_png};
+use gtsr_eval::{FINAL_LABEL, Timeline, TimelinePoint, plot_png};
+use gtsr_eval::{ReportRow, format_duration, markdown_table, seed_summary_table, write_markdown};
 
 fn timeline(label: &str, scale: f64, with_chamfer: bool) -> Timeline {
     timeline_with(label, scale, with_chamfer, false)

@@ -13,6 +13,7 @@
 //!   containment, smoothness, flattening, mask;
 //! - [`config`]: components (what to leave out), presets, `auto`, weights and schedule;
 //! - [`trainer`]: the step, Adam with resizable state (module `optim`), density control (`densify`);
+//! - [`readout`]: the model read out for the mesh (depth, normals, radiance per view);
 //! - [`checkpoint`], [`export`]: saving and resuming, 3DGS-compatible PLY.
 
 #![warn(missing_docs)]
@@ -22,7 +23,7 @@
 pub mod checkpoint;
 pub mod config;
 mod densify;
-pub mod error;
+mod error;
 pub mod export;
 pub mod gaussians;
 pub mod geometry;
@@ -31,12 +32,9 @@ pub mod losses;
 pub mod model;
 mod optim;
 pub mod pbr;
+pub mod readout;
 pub mod sh;
 pub mod trainer;
 pub mod views;
 
-pub use config::{Components, Preset, TrainConfig};
 pub use error::ModelError;
-pub use model::{Model, RenderOptions, Renders};
-pub use trainer::{StepReport, StepTimes, Trainer};
-pub use views::ViewTensors;

@@ -6,7 +6,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use gtsr_data::{Scene, View};
 use gtsr_render_kernels::Camera;
 
-use crate::config::SceneEvidence;
+use crate::config::{MASK_EDGE_CAP, SceneEvidence};
 use crate::error::ModelError;
 use crate::geometry::pixel_rays;
 
@@ -16,7 +16,7 @@ pub const NEAR: f64 = 0.05;
 /// Far clip distance.
 pub const FAR: f64 = 1000.0;
 
-/// Converts a data camera (glam, OpenCV) to the kernels' camera.
+/// Converts a data camera (glam, OpenCV) to the kernels' camera ([`data_camera`] converts back).
 pub fn kernel_camera(c: &gtsr_data::Camera, name: &str) -> Result<Camera, ModelError> {
     let m = c.world_to_camera.matrix3;
     let cols = [m.x_axis, m.y_axis, m.z_axis];
@@ -39,6 +39,30 @@ pub fn kernel_camera(c: &gtsr_data::Camera, name: &str) -> Result<Camera, ModelE
         view: name.to_string(),
         reason: e.to_string(),
     })
+}
+
+/// The data camera of a kernel camera: the inverse of [`kernel_camera`], to the bit (every
+/// value went from `f32` to `f64` and comes back).
+pub fn data_camera(k: &Camera) -> gtsr_data::Camera {
+    let r = &k.rotation;
+    let column = |j: usize| glam::Vec3::new(r[0][j] as f32, r[1][j] as f32, r[2][j] as f32);
+    let t = glam::Vec3::new(
+        k.translation[0] as f32,
+        k.translation[1] as f32,
+        k.translation[2] as f32,
+    );
+    gtsr_data::Camera {
+        world_to_camera: glam::Affine3A::from_mat3_translation(
+            glam::Mat3::from_cols(column(0), column(1), column(2)),
+            t,
+        ),
+        fx: k.fx as f32,
+        fy: k.fy as f32,
+        cx: k.cx as f32,
+        cy: k.cy as f32,
+        width: k.width,
+        height: k.height,
+    }
 }
 
 /// A training or test view on the device.
@@ -179,9 +203,6 @@ impl ViewTensors {
     }
 }
 
-/// The largest distance [`mask_edge_distance`] reports.
-pub const MASK_EDGE_CAP: usize = 8;
-
 /// Per pixel of a row-major `w x h` mask, the Chebyshev distance in pixels to the nearest pixel
 /// on the other side of the 0.5 level (1 for the pixels on either side of the silhouette),
 /// capped at [`MASK_EDGE_CAP`]; pixels off the image do not count.
@@ -288,4 +309,24 @@ pub fn scene_evidence(scene: &Scene, max_angle_deg: f64) -> Result<SceneEvidence
         .filter(|n| !n.is_empty())
         .count();
     Ok(e)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_data_camera_comes_back_from_the_kernels_to_the_bit() {
+        let eye = glam::Vec3::new(0.3, -1.7, 2.9);
+        let c2w =
+            glam::Mat4::look_at_rh(eye, glam::Vec3::new(0.1, 0.2, -0.3), glam::Vec3::Y).inverse();
+        let c = gtsr_data::Camera::from_opengl_camera_to_world(c2w, 91.3, 88.7, 31.9, 24.1, 64, 48);
+        let back = data_camera(&kernel_camera(&c, "view").unwrap());
+        assert_eq!(back.world_to_camera, c.world_to_camera);
+        assert_eq!(
+            (back.fx, back.fy, back.cx, back.cy),
+            (c.fx, c.fy, c.cx, c.cy)
+        );
+        assert_eq!((back.width, back.height), (c.width, c.height));
+    }
 }

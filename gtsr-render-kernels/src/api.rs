@@ -4,7 +4,7 @@ use burn::backend::Dispatch;
 use burn::tensor::{Device, Tensor, TensorData};
 use thiserror::Error;
 
-use crate::backend::{SplatBackend, supported_dtype};
+use crate::backend::{SplatBackend, SplatPrimitives, supported_dtype};
 use crate::config::SplatConfig;
 
 /// The Gaussians to render, as Burn tensors on one device (any expression: activations, SH
@@ -238,15 +238,15 @@ pub fn render(inputs: SplatInputs, config: &SplatConfig) -> Result<RenderOutput,
     let xy_offsets = validate(&inputs, config)?;
     let c = inputs.features.dims()[1];
     let (h, w) = (config.camera.height as usize, config.camera.width as usize);
-    let (out, aux) = <Dispatch as SplatBackend>::splat(
-        inputs.means.into_dispatch(),
-        inputs.quats.into_dispatch(),
-        inputs.scales.into_dispatch(),
-        inputs.opacities.into_dispatch(),
-        inputs.features.into_dispatch(),
-        xy_offsets.into_dispatch(),
-        config.clone(),
-    );
+    let primitives = SplatPrimitives {
+        means: inputs.means.into_dispatch(),
+        quats: inputs.quats.into_dispatch(),
+        scales: inputs.scales.into_dispatch(),
+        opacities: inputs.opacities.into_dispatch(),
+        features: inputs.features.into_dispatch(),
+        xy_offsets: xy_offsets.into_dispatch(),
+    };
+    let (out, aux) = <Dispatch as SplatBackend>::splat(primitives, config.clone());
     let out: Tensor<3> = Tensor::from_dispatch(out);
     let aux: Tensor<2> = Tensor::from_dispatch(aux);
     // Image and alpha as products with 0/1 selection matrices rather than last-axis slices:

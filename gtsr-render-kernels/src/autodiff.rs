@@ -1,7 +1,7 @@
 //! `Autodiff<B, C>`: the splat op as a node of Burn's autograd graph whose backward step calls
 //! [`SplatKernels::splat_backward`].
 
-use burn::backend::{AutodiffBackend, tensor::FloatTensor};
+use burn::backend::{AutodiffBackend, Backend, tensor::FloatTensor};
 use burn_autodiff::{
     Autodiff,
     checkpoint::{base::Checkpointer, strategy::CheckpointStrategy},
@@ -12,6 +12,23 @@ use burn_autodiff::{
 use crate::backend::{SplatBackend, SplatKernels, SplatPrimitives};
 use crate::config::SplatConfig;
 
+/// The backward step of an op with `N` differentiable inputs: takes the gradient of the op's
+/// output, turns it (with the op's saved state) into the inputs' gradients with
+/// `input_grads`, and registers each with its input's node (inputs that need none have none).
+pub(crate) fn backward_step<B: Backend, S, const N: usize>(
+    ops: Ops<S, N>,
+    grads: &mut Gradients,
+    input_grads: impl FnOnce(S, FloatTensor<B>) -> [FloatTensor<B>; N],
+) {
+    let grad = grads.consume::<B>(&ops.node);
+    let input_grads = input_grads(ops.state, grad);
+    for (parent, g) in ops.parents.into_iter().zip(input_grads) {
+        if let Some(node) = parent {
+            grads.register::<B>(node.id, g);
+        }
+    }
+}
+
 #[derive(Debug)]
 struct SplatBackward;
 
@@ -19,42 +36,17 @@ impl<B: SplatKernels> Backward<B, 6> for SplatBackward {
     type State = B::SplatState;
 
     fn backward(self, ops: Ops<Self::State, 6>, grads: &mut Gradients, _: &mut Checkpointer) {
-        let grad = grads.consume::<B>(&ops.node);
-        let input_grads = B::splat_backward(ops.state, grad);
-        for (parent, g) in ops.parents.into_iter().zip(input_grads) {
-            if let Some(node) = parent {
-                grads.register::<B>(node.id, g);
-            }
-        }
+        backward_step::<B, _, 6>(ops, grads, B::splat_backward);
     }
 }
 
 impl<B: SplatKernels, C: CheckpointStrategy> SplatBackend for Autodiff<B, C> {
     fn splat(
-        means: FloatTensor<Self>,
-        quats: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        opacities: FloatTensor<Self>,
-        features: FloatTensor<Self>,
-        xy_offsets: FloatTensor<Self>,
+        inputs: SplatPrimitives<Self>,
         config: SplatConfig,
     ) -> (FloatTensor<Self>, FloatTensor<Self>) {
-        let guards = [
-            means.node(),
-            quats.node(),
-            scales.node(),
-            opacities.node(),
-            features.node(),
-            xy_offsets.node(),
-        ];
-        let inputs = SplatPrimitives::<B> {
-            means: means.into_primitive(),
-            quats: quats.into_primitive(),
-            scales: scales.into_primitive(),
-            opacities: opacities.into_primitive(),
-            features: features.into_primitive(),
-            xy_offsets: xy_offsets.into_primitive(),
-        };
+        let guards = splat_fields!([], &inputs, |t| t.node());
+        let inputs = inputs.map(|t| t.into_primitive());
         let (image, aux, state) = B::splat_forward(inputs, &config);
         let image = match SplatBackward
             .prepare::<C>(guards)

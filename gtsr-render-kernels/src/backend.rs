@@ -11,7 +11,11 @@
 
 use std::sync::Arc;
 
+#[cfg(feature = "wgpu")]
+use burn::backend::fusion::custom::TensorSpec;
 use burn::backend::{Backend, ExtensionType, NdArray, backend_extension, tensor::FloatTensor};
+#[cfg(feature = "wgpu")]
+use burn::tensor::Shape;
 use burn::tensor::{DType, TensorData};
 use burn_ndarray::NdArrayTensor;
 
@@ -64,36 +68,49 @@ pub trait SplatKernels: Backend {
 pub trait SplatBackend: Backend {
     /// Forward splat: returns `(image_and_alpha [H, W, C + 1], aux [N, 4])`. Only the first
     /// output is differentiable.
-    #[fusion(meta = crate::gpu::splat_meta)]
+    #[fusion(meta = crate::backend::splat_meta)]
     fn splat(
-        means: FloatTensor<Self>,
-        quats: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        opacities: FloatTensor<Self>,
-        features: FloatTensor<Self>,
-        xy_offsets: FloatTensor<Self>,
+        #[extension_type] inputs: SplatPrimitives<Self>,
         config: SplatConfig,
     ) -> (FloatTensor<Self>, FloatTensor<Self>);
 }
 
+/// Output metadata of [`SplatBackend::splat`] for the lazy (`Fusion`) implementation: the
+/// `[H, W, C + 1]` image and the `[N, 4]` aux rows, in the dtype of the means.
+#[cfg(feature = "wgpu")]
+pub fn splat_meta(
+    inputs: &SplatPrimitivesMetadata,
+    config: &SplatConfig,
+) -> (TensorSpec, TensorSpec) {
+    let (h, w) = (config.camera.height as usize, config.camera.width as usize);
+    let means = &inputs.means;
+    let n = means.shape[0];
+    let c = inputs.features.shape[1];
+    let spec = |shape: Vec<usize>| TensorSpec::new(Shape::from(shape), means.dtype);
+    (spec(vec![h, w, c + 1]), spec(vec![n, 4]))
+}
+
+impl<B: Backend> SplatPrimitives<B> {
+    /// The six tensors in field order: means, quats, scales, opacities, features, offsets
+    /// (also the order of [`SplatKernels::splat_backward`]'s gradients).
+    pub fn into_array(self) -> [FloatTensor<B>; 6] {
+        splat_fields!([], self, |t| t)
+    }
+
+    /// The primitives with `f` applied to each tensor, in field order.
+    pub fn map<C: Backend>(
+        self,
+        mut f: impl FnMut(FloatTensor<B>) -> FloatTensor<C>,
+    ) -> SplatPrimitives<C> {
+        splat_fields!(SplatPrimitives, self, |t| f(t))
+    }
+}
+
 impl SplatBackend for NdArray {
     fn splat(
-        means: FloatTensor<Self>,
-        quats: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        opacities: FloatTensor<Self>,
-        features: FloatTensor<Self>,
-        xy_offsets: FloatTensor<Self>,
+        inputs: SplatPrimitives<Self>,
         config: SplatConfig,
     ) -> (FloatTensor<Self>, FloatTensor<Self>) {
-        let inputs = SplatPrimitives {
-            means,
-            quats,
-            scales,
-            opacities,
-            features,
-            xy_offsets,
-        };
         let (out, aux, _) = <Self as SplatKernels>::splat_forward(inputs, &config);
         (out, aux)
     }
@@ -177,14 +194,7 @@ pub(crate) fn to_nd<F: Real + burn::tensor::Element>(v: Vec<F>, shape: &[usize])
 }
 
 fn host_inputs<F: Real>(p: &SplatPrimitives<NdArray>) -> HostBuffers<F> {
-    HostBuffers {
-        means: read_host(&p.means),
-        quats: read_host(&p.quats),
-        scales: read_host(&p.scales),
-        opacities: read_host(&p.opacities),
-        features: read_host(&p.features),
-        xy_offsets: read_host(&p.xy_offsets),
-    }
+    splat_fields!(HostBuffers, &p, |t| read_host(t))
 }
 
 fn nd_forward<F: Real + burn::tensor::Element>(

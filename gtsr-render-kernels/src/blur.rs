@@ -21,6 +21,7 @@ use burn_autodiff::{
 use burn_ndarray::NdArrayTensor;
 use rayon::prelude::*;
 
+use crate::autodiff::backward_step;
 use crate::backend::{host_slice, is_f64, on_ndarray, to_nd};
 use crate::scalar::Real;
 
@@ -124,12 +125,8 @@ impl<B: BlurBackend> Backward<B, 1> for BlurBackward {
     type State = BlurWindow;
 
     fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
-        let grad = grads.consume::<B>(&ops.node);
         // The blur is self-adjoint: its window is symmetric and its padding zero.
-        let input_grad = B::blur_planes(grad, ops.state);
-        if let [Some(parent)] = ops.parents {
-            grads.register::<B>(parent.id, input_grad);
-        }
+        backward_step::<B, _, 1>(ops, grads, |window, grad| [B::blur_planes(grad, window)]);
     }
 }
 

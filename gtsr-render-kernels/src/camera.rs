@@ -79,6 +79,11 @@ pub enum CameraError {
 /// Tolerance on `|R R^T - I|` accepted by [`Camera::new`].
 pub const ROTATION_TOLERANCE: f64 = 1e-4;
 
+/// The EWA Jacobian is evaluated at a mean clamped to this fraction of the image outside the
+/// frame (x/z and y/z limited to `[-0.15 W, 1.15 W]` in pixels), which keeps splats far outside
+/// the frustum from blowing up.
+pub const FRUSTUM_MARGIN: f64 = 0.15;
+
 impl Camera {
     /// Builds a camera, checking that every parameter is finite, the focal lengths are positive,
     /// the image is not empty, the rotation is proper (`R R^T = I`, `det R = 1`, within
@@ -217,9 +222,9 @@ impl Camera {
     }
 
     /// The ranges `[lo, hi]` of `x/z` and of `y/z` at which the EWA Jacobian is evaluated:
-    /// the frame widened by [`crate::config::FRUSTUM_MARGIN`] on every side.
+    /// the frame widened by [`FRUSTUM_MARGIN`] on every side.
     pub fn jacobian_limits(&self) -> ([f64; 2], [f64; 2]) {
-        let m = crate::config::FRUSTUM_MARGIN;
+        let m = FRUSTUM_MARGIN;
         let (w, h) = (f64::from(self.width), f64::from(self.height));
         (
             [
@@ -230,14 +235,6 @@ impl Camera {
                 (-m * h - self.cy) / self.fy,
                 ((1.0 + m) * h - self.cy) / self.fy,
             ],
-        )
-    }
-
-    /// Number of 16x16 tiles along x and y.
-    pub fn tile_grid(&self) -> (u32, u32) {
-        (
-            self.width.div_ceil(crate::TILE_SIZE),
-            self.height.div_ceil(crate::TILE_SIZE),
         )
     }
 }

@@ -20,12 +20,22 @@ pub const BLUR_PX2: f64 = 0.3;
 /// silhouette of dilated splats then spills past the mask, and a fit to the mask pulls the
 /// splats inward (GTSR-rs trains with this value; see `gtsr-model`'s `TrainConfig::blur_px2`).
 pub const PIXEL_BOX_BLUR_PX2: f64 = 1.0 / 12.0;
-/// The EWA Jacobian is evaluated at a mean clamped to this fraction of the image outside the
-/// frame (x/z and y/z limited to `[-0.15 W, 1.15 W]` in pixels), which keeps splats far outside
-/// the frustum from blowing up.
-pub const FRUSTUM_MARGIN: f64 = 0.15;
+// Defined beside `Camera::jacobian_limits`, which applies it.
+pub use crate::camera::FRUSTUM_MARGIN;
 /// Quaternions with a squared norm below this are treated as degenerate and culled.
 pub const QUAT_MIN_NORM2: f64 = 1e-8;
+
+// The camera's tiling lives here, beside `TILE_SIZE`, so that the camera module needs nothing
+// from this one.
+impl Camera {
+    /// Number of 16x16 tiles along x and y.
+    pub fn tile_grid(&self) -> (u32, u32) {
+        (
+            self.width.div_ceil(TILE_SIZE),
+            self.height.div_ceil(TILE_SIZE),
+        )
+    }
+}
 
 /// How alpha is cut off at [`ALPHA_MIN`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]

@@ -40,9 +40,45 @@
 // backend, and the kernels are written against it on purpose.
 #![allow(deprecated)]
 
+/// A value built from the six splat inputs of `src`, one expression per field in field order
+/// (means, quats, scales, opacities, features, xy_offsets), with `v` bound in turn to each
+/// field of `src` (`&src`: borrowed; `src`: moved):
+/// - `splat_fields!(Type, src, |v| expr)` is `Type { means: expr, quats: expr, .. }`;
+/// - `splat_fields!([], src, |v| expr)` is the array `[expr, expr, ..]`.
+///
+/// The one place that lists the inputs field by field ([`backend::SplatPrimitives`],
+/// [`cpu::HostBuffers`], [`cpu::HostGaussians`], the scenes' `HostScene`).
+macro_rules! splat_fields {
+    ($out:tt, &$src:expr, |$v:ident| $e:expr) => {
+        splat_fields!(@build $out, |$v| $e, &$src.means, &$src.quats, &$src.scales,
+            &$src.opacities, &$src.features, &$src.xy_offsets)
+    };
+    ($out:tt, $src:expr, |$v:ident| $e:expr) => {
+        splat_fields!(@build $out, |$v| $e, $src.means, $src.quats, $src.scales,
+            $src.opacities, $src.features, $src.xy_offsets)
+    };
+    (@build [], |$v:ident| $e:expr, $($x:expr),*) => {
+        [$({
+            let $v = $x;
+            $e
+        }),*]
+    };
+    (@build $ty:ident, |$v:ident| $e:expr,
+        $means:expr, $quats:expr, $scales:expr, $opacities:expr, $features:expr, $xy:expr) => {
+        $ty {
+            means: { let $v = $means; $e },
+            quats: { let $v = $quats; $e },
+            scales: { let $v = $scales; $e },
+            opacities: { let $v = $opacities; $e },
+            features: { let $v = $features; $e },
+            xy_offsets: { let $v = $xy; $e },
+        }
+    };
+}
+
 pub mod adam;
 pub mod antialias;
-pub mod api;
+mod api;
 mod autodiff;
 pub mod backend;
 pub mod blur;

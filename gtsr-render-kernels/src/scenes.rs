@@ -47,27 +47,13 @@ impl HostScene {
 
     /// Host view for [`crate::cpu`] and [`crate::reference`].
     pub fn host(&self) -> HostGaussians<'_, f64> {
-        HostGaussians {
-            means: &self.means,
-            quats: &self.quats,
-            scales: &self.scales,
-            opacities: &self.opacities,
-            features: &self.features,
-            xy_offsets: &self.xy_offsets,
-        }
+        splat_fields!(HostGaussians, &self, |v| v.as_slice())
     }
 
     /// The inputs rounded to f32, for the host kernels in f32 ([`HostBuffers::host`]).
     pub fn to_f32(&self) -> HostBuffers<f32> {
         let f = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
-        HostBuffers {
-            means: f(&self.means),
-            quats: f(&self.quats),
-            scales: f(&self.scales),
-            opacities: f(&self.opacities),
-            features: f(&self.features),
-            xy_offsets: f(&self.xy_offsets),
-        }
+        splat_fields!(HostBuffers, &self, |v| f(v))
     }
 
     /// The render configuration with the given cut-off.
@@ -246,7 +232,7 @@ pub struct StiffCase {
     pub scene: HostScene,
 }
 
-fn single(camera: Camera, mean: [f64; 3], quat: [f64; 4], scale: [f64; 3], o: f64) -> HostScene {
+fn single(camera: &Camera, mean: [f64; 3], quat: [f64; 4], scale: [f64; 3], o: f64) -> HostScene {
     HostScene {
         means: mean.to_vec(),
         quats: quat.to_vec(),
@@ -255,7 +241,7 @@ fn single(camera: Camera, mean: [f64; 3], quat: [f64; 4], scale: [f64; 3], o: f6
         features: vec![0.9, 0.4, 0.1],
         xy_offsets: vec![0.0, 0.0],
         channels: 3,
-        camera,
+        camera: camera.clone(),
         background: vec![0.1, 0.2, 0.3],
     }
 }
@@ -286,119 +272,34 @@ pub fn stiff_cases() -> Vec<StiffCase> {
         s.extend(&e);
         s
     };
+    // One Gaussian before the axis camera.
+    let case = |name, mean, quat, scale, o| StiffCase {
+        name,
+        scene: single(&cam, mean, quat, scale, o),
+    };
     // A quaternion turning the local z axis (the flat one) to camera x: the splat is edge-on.
     let h = std::f64::consts::FRAC_1_SQRT_2;
     let edge_on_quat = [h, 0.0, h, 0.0];
+    let id = [1.0, 0.0, 0.0, 0.0];
+    // One case a row (name, mean, quaternion, scales, opacity), kept as a table.
+    #[rustfmt::skip]
     let mut cases = vec![
-        StiffCase {
-            name: "edge-on flat (scale 1e-6)",
-            scene: single(
-                cam.clone(),
-                [0.0, 0.0, 3.0],
-                edge_on_quat,
-                [0.5, 0.5, 1e-6],
-                0.8,
-            ),
-        },
-        StiffCase {
-            name: "tiny scales (1e-6)",
-            scene: single(
-                cam.clone(),
-                [0.05, -0.02, 3.0],
-                [1.0, 0.2, 0.1, 0.0],
-                [1e-6; 3],
-                0.8,
-            ),
-        },
-        StiffCase {
-            name: "huge scales (1e3)",
-            scene: single(
-                cam.clone(),
-                [0.1, 0.0, 3.0],
-                [0.9, 0.1, 0.3, 0.2],
-                [1e3; 3],
-                0.5,
-            ),
-        },
-        StiffCase {
-            name: "mixed 1e-6 .. 1e3",
-            scene: single(
-                cam.clone(),
-                [0.0, 0.1, 2.0],
-                [0.7, 0.1, 0.7, 0.0],
-                [1e3, 1e-6, 1.0],
-                0.6,
-            ),
-        },
-        StiffCase {
-            name: "crossing the near plane",
-            scene: single(
-                cam.clone(),
-                [0.0, 0.0, 0.0105],
-                [1.0, 0.0, 0.0, 0.0],
-                [0.05; 3],
-                0.7,
-            ),
-        },
-        StiffCase {
-            name: "behind the camera",
-            scene: single(
-                cam.clone(),
-                [0.0, 0.0, -1.0],
-                [1.0, 0.0, 0.0, 0.0],
-                [0.5; 3],
-                0.7,
-            ),
-        },
-        StiffCase {
-            name: "far outside the frustum",
-            scene: single(
-                cam.clone(),
-                [40.0, -30.0, 2.0],
-                [1.0, 0.0, 0.0, 0.0],
-                [5.0; 3],
-                0.7,
-            ),
-        },
-        StiffCase {
-            name: "opacity 1 - 1e-7",
-            scene: single(
-                cam.clone(),
-                [0.0, 0.0, 3.0],
-                [1.0, 0.0, 0.0, 0.0],
-                [0.2; 3],
-                1.0 - 1e-7,
-            ),
-        },
+        case("edge-on flat (scale 1e-6)", [0.0, 0.0, 3.0], edge_on_quat, [0.5, 0.5, 1e-6], 0.8),
+        case("tiny scales (1e-6)", [0.05, -0.02, 3.0], [1.0, 0.2, 0.1, 0.0], [1e-6; 3], 0.8),
+        case("huge scales (1e3)", [0.1, 0.0, 3.0], [0.9, 0.1, 0.3, 0.2], [1e3; 3], 0.5),
+        case("mixed 1e-6 .. 1e3", [0.0, 0.1, 2.0], [0.7, 0.1, 0.7, 0.0], [1e3, 1e-6, 1.0], 0.6),
+        case("crossing the near plane", [0.0, 0.0, 0.0105], id, [0.05; 3], 0.7),
+        case("behind the camera", [0.0, 0.0, -1.0], id, [0.5; 3], 0.7),
+        case("far outside the frustum", [40.0, -30.0, 2.0], id, [5.0; 3], 0.7),
+        case("opacity 1 - 1e-7", [0.0, 0.0, 3.0], id, [0.2; 3], 1.0 - 1e-7),
         StiffCase {
             name: "near-zero quaternion (1e-5)",
-            scene: with_base(single(
-                cam.clone(),
-                [0.0, 0.0, 0.0],
-                [1e-5, 0.0, 0.0, 0.0],
-                [0.1; 3],
-                0.5,
-            )),
+            scene: with_base(single(&cam, [0.0; 3], [1e-5, 0.0, 0.0, 0.0], [0.1; 3], 0.5)),
         },
-        StiffCase {
-            name: "small quaternion (1e-3)",
-            scene: single(
-                cam.clone(),
-                [0.0, 0.0, 3.0],
-                [1e-3, 2e-4, 0.0, 1e-4],
-                [0.1; 3],
-                0.5,
-            ),
-        },
+        case("small quaternion (1e-3)", [0.0, 0.0, 3.0], [1e-3, 2e-4, 0.0, 1e-4], [0.1; 3], 0.5),
     ];
     // 10,000 splats on one pixel.
-    let mut pile = single(
-        cam.clone(),
-        [0.0, 0.0, 3.0],
-        [1.0, 0.0, 0.0, 0.0],
-        [0.002; 3],
-        0.3,
-    );
+    let mut pile = single(&cam, [0.0, 0.0, 3.0], id, [0.002; 3], 0.3);
     let one = pile.clone();
     for k in 1..10_000 {
         let mut g = one.clone();
@@ -420,13 +321,7 @@ pub fn stiff_cases() -> Vec<StiffCase> {
     ];
     let mut s = base.clone();
     for &(_, which, v) in &bad {
-        let mut g = single(
-            cam.clone(),
-            [0.0, 0.0, 0.0],
-            [1.0, 0.0, 0.0, 0.0],
-            [0.1; 3],
-            0.5,
-        );
+        let mut g = single(&cam, [0.0; 3], id, [0.1; 3], 0.5);
         g.camera = s.camera.clone();
         match which {
             0 => g.means[1] = v,

@@ -22,6 +22,7 @@ use burn_autodiff::{
 use burn_ndarray::NdArrayTensor;
 use rayon::prelude::*;
 
+use crate::autodiff::backward_step;
 use crate::backend::{host_slice, is_f64, on_ndarray, to_nd};
 use crate::scalar::Real;
 
@@ -182,14 +183,9 @@ impl<B: ShKernels> Backward<B, 3> for ShBackwardStep {
     type State = (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>, ShView);
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
-        let grad = grads.consume::<B>(&ops.node);
-        let (dc, rest, means, view) = ops.state;
-        let input_grads = B::sh_backward(&dc, &rest, &means, view, grad);
-        for (parent, g) in ops.parents.into_iter().zip(input_grads) {
-            if let Some(node) = parent {
-                grads.register::<B>(node.id, g);
-            }
-        }
+        backward_step::<B, _, 3>(ops, grads, |(dc, rest, means, view), grad| {
+            B::sh_backward(&dc, &rest, &means, view, grad)
+        });
     }
 }
 
@@ -660,6 +656,9 @@ mod tests {
 
     const CENTRE: [f64; 3] = [0.4, -0.3, -4.0];
 
+    /// [`sh_colours`] or [`sh_colours_by_tensor_ops`].
+    type Colours = fn(Tensor<2>, Option<Tensor<2>>, Tensor<2>, ShView) -> Tensor<2>;
+
     #[test]
     fn the_op_equals_the_tensor_ops_at_every_degree() {
         let device = Device::ndarray();
@@ -670,30 +669,18 @@ mod tests {
                 centre: CENTRE,
                 degree,
             };
-            let t = |v: &Vec<f64>, c: usize| tensor(v.clone(), [n, c], &device, F64);
-            let op = host(sh_colours(
-                t(&dc, 3),
-                Some(t(&rest, 45)),
-                t(&means, 3),
-                view,
-            ));
-            let ops = host(sh_colours_by_tensor_ops(
-                t(&dc, 3),
-                Some(t(&rest, 45)),
-                t(&means, 3),
-                view,
-            ));
+            // The colours by `colours` of the inputs as tensors of `dtype`.
+            let run = |colours: Colours, dtype| {
+                let t = |v: &Vec<f64>, c: usize| tensor(v.clone(), [n, c], &device, dtype);
+                host(colours(t(&dc, 3), Some(t(&rest, 45)), t(&means, 3), view))
+            };
+            let op = run(sh_colours, F64);
+            let ops = run(sh_colours_by_tensor_ops, F64);
             for (a, b) in op.iter().zip(&ops) {
                 assert!((a - b).abs() < 1e-12, "degree {degree}: {a} against {b}");
             }
             // f32 against the f64 result.
-            let t32 = |v: &Vec<f64>, c: usize| tensor(v.clone(), [n, c], &device, F32);
-            let op32 = host(sh_colours(
-                t32(&dc, 3),
-                Some(t32(&rest, 45)),
-                t32(&means, 3),
-                view,
-            ));
+            let op32 = run(sh_colours, F32);
             for (a, b) in op32.iter().zip(&op) {
                 assert!((a - b).abs() < 1e-5, "degree {degree}: {a} against {b}");
             }

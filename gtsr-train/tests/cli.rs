@@ -3,7 +3,13 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
-use gtsr_data::synthetic::{MaterialPreset, SceneConfig, ShapeKind, generate_scene};
+mod common;
+use common::tiny_scene;
+
+#[cfg(feature = "wgpu")]
+use gtsr_data::synthetic::{SceneConfig, ShapeKind, generate_scene};
+#[cfg(feature = "wgpu")]
+use gtsr_data::transport::MaterialPreset;
 
 /// The tiny run's schedule: every call on one run passes it (so `--resume` finds it finished).
 const TINY_RUN: [&str; 4] = ["--iterations", "40", "--resolution", "24"];
@@ -18,16 +24,6 @@ fn gtsr_train(data: &Path, out: &Path, args: &[&str]) -> Output {
         .args(args)
         .output()
         .expect("running gtsr-train")
-}
-
-fn tiny_scene(dir: &Path) {
-    let mut c = SceneConfig::new(ShapeKind::Sphere, MaterialPreset::Wax);
-    c.resolution = 24;
-    c.n_train = 12;
-    c.n_test = 2;
-    c.spp = 4;
-    c.seed = 3;
-    generate_scene(dir, &c, |_| {}).expect("generating the tiny scene");
 }
 
 fn text(o: &Output) -> String {

@@ -8,11 +8,9 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use gtsr_data::ply::TriMesh;
-use gtsr_data::{Downscale, LoadOptions, load_scene};
 use gtsr_eval::{
-    ReportRow, Timeline, markdown_table, masks_mesh, plot_png, score_against_ground_truth,
-    seed_summary_table,
+    ReportRow, Timeline, ground_truth, markdown_table, native_masks_mesh, plot_png, scene_name,
+    score_against_ground_truth, seed_summary_table,
 };
 
 /// Options of `bench-recon`.
@@ -105,48 +103,7 @@ fn geometry_row(m: &Metrics, label: String, scene: &str) -> ReportRow {
         ..ReportRow::default()
     }
 }
-/// A scene folder's name, as the tables and output folders use it.
-pub(crate) fn scene_name(scene_dir: &Path) -> String {
-    scene_dir
-        .file_name()
-        .map_or_else(|| "scene".to_string(), |s| s.to_string_lossy().into_owned())
-}
-
-/// The scene's ground-truth `mesh.ply`; an error naming the folder when it has none.
-pub(crate) fn ground_truth(scene: &gtsr_data::Scene, scene_dir: &Path) -> Result<TriMesh> {
-    let gt_path = scene
-        .mesh_path
-        .clone()
-        .with_context(|| format!("{}: no mesh.ply", scene_dir.display()))?;
-    Ok(gtsr_data::ply::read_ply(&gt_path)?)
-}
-
-/// The scene at its own resolution and its masks' mesh ([`masks_mesh`]); errors unless every
-/// training view has a mask and something lies inside all of them.
-pub(crate) fn native_masks_mesh(scene_dir: &Path) -> Result<(gtsr_data::Scene, TriMesh)> {
-    let opts = LoadOptions {
-        downscale: Downscale::None,
-        ..LoadOptions::default()
-    };
-    let scene = load_scene(scene_dir, &opts)
-        .with_context(|| format!("loading {} at its own size", scene_dir.display()))?;
-    let views: Vec<_> = scene
-        .train
-        .iter()
-        .filter_map(|v| v.mask.as_ref().map(|m| (v.camera, m.as_slice())))
-        .collect();
-    if views.is_empty() || views.len() != scene.train.len() {
-        bail!(
-            "{}: the masks alone need a mask on every training view",
-            scene_dir.display()
-        );
-    }
-    let mesh = masks_mesh(&views, None)?
-        .with_context(|| format!("{}: the masks are empty", scene_dir.display()))?;
-    Ok((scene, mesh))
-}
-
-/// The masks alone at the dataset's own resolution ([`masks_mesh`]), evaluated (with the
+/// The masks alone at the dataset's own resolution ([`native_masks_mesh`]), evaluated (with the
 /// hull-blind split against themselves) and written to `out/mesh.ply`.
 fn masks_row(scene_dir: &Path, name: &str, out: &Path) -> Result<ReportRow> {
     let t0 = Instant::now();

@@ -5,7 +5,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use gtsr_data::synthetic::{MaterialPreset, SceneConfig, ShapeKind, generate_scene};
+use gtsr_data::synthetic::{SceneConfig, ShapeKind, generate_scene};
+use gtsr_data::transport::MaterialPreset;
 
 /// Arguments of `cargo xtask gen-scene`.
 #[derive(clap::Args, Debug, Clone)]

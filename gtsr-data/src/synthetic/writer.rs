@@ -12,9 +12,9 @@ use crate::camera::Camera;
 use crate::error::{DataError, Result};
 use crate::image_io::{linear_to_srgb, write_atomic, write_png_rgba8};
 use crate::ply::write_ply;
-use crate::synthetic::material::{Material, MaterialPreset};
 use crate::synthetic::shapes::ShapeKind;
-use crate::synthetic::tracer::{Lighting, Rendered, Tracer};
+use crate::transport::material::{Material, MaterialPreset};
+use crate::transport::tracer::{Lighting, Rendered, Tracer};
 
 /// Horizontal field of view of the generated views (as the development data).
 pub const DEFAULT_FOV_X: f32 = 0.691_111_2;

@@ -177,7 +177,7 @@ pub const HULL_DEPTH_BAND: f64 = 3.0;
 /// decided on the detached depth.
 ///
 /// With `occluders` (the bound's depth at a neighbour in front of an occluding edge of the
-/// bound, `0` elsewhere; `gtsr_eval::MeshDepth::occluders` gives them) a pixel also counts, still
+/// bound, `0` elsewhere; `gtsr_mesh::raycast::MeshDepth::occluders` gives them) a pixel also counts, still
 /// against `H`, where `D` lies within the band of that occluder's depth: the nearer surface
 /// spills past the edge onto a pixel that the bound places behind it.
 pub fn hull_depth(

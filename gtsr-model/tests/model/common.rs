@@ -3,7 +3,8 @@
 use std::path::Path;
 
 use burn::tensor::Device;
-use gtsr_data::synthetic::{MaterialPreset, SceneConfig, ShapeKind, generate_scene};
+use gtsr_data::synthetic::{SceneConfig, ShapeKind, generate_scene};
+use gtsr_data::transport::MaterialPreset;
 use gtsr_data::{LoadOptions, Scene, load_scene};
 use gtsr_model::config::{Components, TrainConfig};
 use gtsr_model::trainer::{Trainer, initial_points};

@@ -1047,7 +1047,7 @@ fn the_mask_edge_distance_counts_pixels_to_the_other_side_of_the_silhouette() {
     let full = gtsr_model::views::mask_edge_distance(&vec![1.0; w * h], w, h);
     assert!(
         full.iter()
-            .all(|&v| v == gtsr_model::views::MASK_EDGE_CAP as f32)
+            .all(|&v| v == gtsr_model::config::MASK_EDGE_CAP as f32)
     );
 }
 

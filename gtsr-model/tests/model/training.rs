@@ -131,8 +131,8 @@ fn detached_model_renders_the_same_and_records_no_graph() {
 /// with `adjust` applied to the configuration.
 fn full_trainer_30(
     dir: &std::path::Path,
-    adjust: impl FnOnce(&mut gtsr_model::TrainConfig),
-) -> (gtsr_model::Trainer, burn::tensor::Device) {
+    adjust: impl FnOnce(&mut gtsr_model::config::TrainConfig),
+) -> (gtsr_model::trainer::Trainer, burn::tensor::Device) {
     let scene = tiny_scene(dir);
     let device = device();
     let mut config = small_config(Preset::Full.components().unwrap(), 30);
@@ -142,7 +142,7 @@ fn full_trainer_30(
 
 /// Makes every surface Gaussian opaque (logit 3), so that the ones deep inside the ball hide
 /// behind the front ones.
-fn make_surface_opaque(t: &mut gtsr_model::Trainer, device: &burn::tensor::Device) {
+fn make_surface_opaque(t: &mut gtsr_model::trainer::Trainer, device: &burn::tensor::Device) {
     let mut host = t.model().surface.to_host();
     for o in host.column_mut(ParamKind::Opacity).unwrap() {
         *o = 3.0;
@@ -155,7 +155,7 @@ fn multi_view_trim_removes_exactly_the_gaussians_too_few_views_observe() {
     let dir = tempfile::tempdir().unwrap();
     let (mut t, device) = full_trainer_30(dir.path(), |_| {});
     make_surface_opaque(&mut t, &device);
-    let counts = |t: &gtsr_model::Trainer| t.observation_counts(0.5).unwrap();
+    let counts = |t: &gtsr_model::trainer::Trainer| t.observation_counts(0.5).unwrap();
     let views = counts(&t);
     let before = views.len();
     let expected = views.iter().filter(|&&v| v < 2).count();
@@ -291,7 +291,7 @@ fn loss_weights_can_be_replaced_but_not_with_refused_ones() {
     t.set_loss_weights(w.clone()).unwrap();
     assert_eq!(t.config().weights, w);
     let mut bad = w.clone();
-    bad.mask_band = gtsr_model::views::MASK_EDGE_CAP as u32;
+    bad.mask_band = gtsr_model::config::MASK_EDGE_CAP as u32;
     let e = t.set_loss_weights(bad).unwrap_err().to_string();
     assert!(e.contains("weights.mask_band"), "{e}");
     assert_eq!(

@@ -8,12 +8,14 @@
 mod alloc;
 mod arith;
 mod bin;
+mod host;
 mod lanes;
 mod project;
 mod raster;
 mod timing;
 
 pub use alloc::keep_freed_memory;
+pub use host::{HostBuffers, HostGaussians, HostGradients};
 pub use lanes::{BlendPath, exp_lanes};
 pub use timing::{KernelTimes, kernel_times};
 pub(crate) use timing::{Phase, lap};
@@ -25,60 +27,8 @@ use rayon::prelude::*;
 use crate::config::{SplatConfig, TILE_PIXELS, TILE_SIZE, status};
 use crate::scalar::Real;
 use bin::Bins;
-use project::{CamF, GaussIn, Splat};
+use project::{CamF, Splat};
 use raster::{RasterCtx, RasterState, SLOT_FIXED};
-
-/// The Gaussians of one render as host slices (row-major, `N` rows).
-#[derive(Clone, Copy, Debug)]
-pub struct HostGaussians<'a, F> {
-    /// `[N, 3]` world-space means.
-    pub means: &'a [F],
-    /// `[N, 4]` quaternions (w, x, y, z), normalised inside.
-    pub quats: &'a [F],
-    /// `[N, 3]` scales (standard deviations along the local axes).
-    pub scales: &'a [F],
-    /// `[N]` opacities.
-    pub opacities: &'a [F],
-    /// `[N, C]` features.
-    pub features: &'a [F],
-    /// `[N, 2]` screen-space offsets added to the projected means (zeros normally; their
-    /// gradient is the screen-space positional gradient used for densification).
-    pub xy_offsets: &'a [F],
-}
-
-impl<F: Real> HostGaussians<'_, F> {
-    /// Number of Gaussians.
-    pub fn len(&self) -> usize {
-        self.opacities.len()
-    }
-
-    /// Whether there are no Gaussians.
-    pub fn is_empty(&self) -> bool {
-        self.opacities.is_empty()
-    }
-
-    /// Whether one of Gaussian `i`'s `c` features is NaN or infinite (such a Gaussian is
-    /// culled, status 2).
-    fn feature_not_finite(&self, i: usize, c: usize) -> bool {
-        self.features[i * c..(i + 1) * c]
-            .iter()
-            .any(|f| !f.is_finite())
-    }
-
-    fn get(&self, i: usize) -> GaussIn<F> {
-        let m = &self.means[3 * i..3 * i + 3];
-        let q = &self.quats[4 * i..4 * i + 4];
-        let s = &self.scales[3 * i..3 * i + 3];
-        let o = &self.xy_offsets[2 * i..2 * i + 2];
-        GaussIn {
-            mean: [m[0], m[1], m[2]],
-            quat: [q[0], q[1], q[2], q[3]],
-            scale: [s[0], s[1], s[2]],
-            opacity: self.opacities[i],
-            xy_offset: [o[0], o[1]],
-        }
-    }
-}
 
 /// What the forward pass keeps for the backward pass.
 #[derive(Debug)]
@@ -107,53 +57,6 @@ pub struct ForwardOutput<F> {
     /// State for [`backward`].
     pub state: ForwardState<F>,
 }
-
-/// Owned host buffers laid out as the raw splat inputs: the inputs themselves (borrowed as
-/// [`HostGaussians`] by [`HostBuffers::host`]) or their gradients ([`HostGradients`]).
-#[derive(Debug, Clone)]
-pub struct HostBuffers<F> {
-    /// `[N, 3]`
-    pub means: Vec<F>,
-    /// `[N, 4]`
-    pub quats: Vec<F>,
-    /// `[N, 3]`
-    pub scales: Vec<F>,
-    /// `[N]`
-    pub opacities: Vec<F>,
-    /// `[N, C]`
-    pub features: Vec<F>,
-    /// `[N, 2]`
-    pub xy_offsets: Vec<F>,
-}
-
-impl<F> HostBuffers<F> {
-    /// The buffers as kernel inputs.
-    pub fn host(&self) -> HostGaussians<'_, F> {
-        HostGaussians {
-            means: &self.means,
-            quats: &self.quats,
-            scales: &self.scales,
-            opacities: &self.opacities,
-            features: &self.features,
-            xy_offsets: &self.xy_offsets,
-        }
-    }
-
-    /// The six buffers in input order: means, quats, scales, opacities, features, offsets.
-    pub fn into_parts(self) -> [Vec<F>; 6] {
-        [
-            self.means,
-            self.quats,
-            self.scales,
-            self.opacities,
-            self.features,
-            self.xy_offsets,
-        ]
-    }
-}
-
-/// Gradients of the raw inputs, laid out as the inputs.
-pub type HostGradients<F> = HostBuffers<F>;
 
 /// Renders `g` with `cfg`. Shapes must be consistent (the Burn wrapper checks them). f32 blends
 /// on [`BlendPath::default_path`].

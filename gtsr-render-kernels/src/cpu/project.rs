@@ -2,6 +2,7 @@
 //! product.
 
 use super::arith::{self, F32x16};
+use super::host::HostGaussians;
 use crate::antialias::MIN_COMPENSATION;
 use crate::config::{ALPHA_MIN, QUAT_MIN_NORM2, SplatConfig, TILE_SIZE, status};
 use crate::scalar::Real;
@@ -85,6 +86,22 @@ pub(crate) struct GaussIn<F> {
     pub scale: [F; 3],
     pub opacity: F,
     pub xy_offset: [F; 2],
+}
+
+impl<F: Real> HostGaussians<'_, F> {
+    pub(super) fn get(&self, i: usize) -> GaussIn<F> {
+        let m = &self.means[3 * i..3 * i + 3];
+        let q = &self.quats[4 * i..4 * i + 4];
+        let s = &self.scales[3 * i..3 * i + 3];
+        let o = &self.xy_offsets[2 * i..2 * i + 2];
+        GaussIn {
+            mean: [m[0], m[1], m[2]],
+            quat: [q[0], q[1], q[2], q[3]],
+            scale: [s[0], s[1], s[2]],
+            opacity: self.opacities[i],
+            xy_offset: [o[0], o[1]],
+        }
+    }
 }
 
 /// One Gaussian on screen.
@@ -589,7 +606,7 @@ pub(crate) fn vjp_math<T: arith::Arith>(
 type Lanes16 = ([F32x16; 3], [F32x16; 4], [F32x16; 3]);
 
 #[inline(always)]
-fn load_lanes(g: &super::HostGaussians<'_, f32>, index: impl Fn(usize) -> usize) -> Lanes16 {
+fn load_lanes(g: &HostGaussians<'_, f32>, index: impl Fn(usize) -> usize) -> Lanes16 {
     let load = |base: &[f32], dim: usize, d: usize| {
         F32x16(std::array::from_fn(|l| base[index(l) * dim + d]))
     };
@@ -606,7 +623,7 @@ fn load_lanes(g: &super::HostGaussians<'_, f32>, index: impl Fn(usize) -> usize)
 /// and `scales[3 k..]`, leaving them where `visible[k]` is `u32::MAX` (culled: its arithmetic
 /// is not used). Bit-identical to [`project_vjp`] on the others.
 pub(crate) struct VjpLanes<'a> {
-    pub g: &'a super::HostGaussians<'a, f32>,
+    pub g: &'a HostGaussians<'a, f32>,
     pub cam: &'a CamF<F32x16>,
     pub first: usize,
     pub visible: &'a [u32],
@@ -618,14 +635,22 @@ pub(crate) struct VjpLanes<'a> {
     pub opacities: &'a mut [f32],
 }
 
-impl pulp::WithSimd for VjpLanes<'_> {
-    type Output = ();
+/// `pulp::WithSimd` for a run struct whose work is the plain `#[inline(always)]` function `$run`
+/// (portable `F32x16` arithmetic, compiled inside the instruction set pulp dispatches to).
+macro_rules! with_simd_by {
+    ($ty:ident, $run:ident) => {
+        impl pulp::WithSimd for $ty<'_> {
+            type Output = ();
 
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        vjp_lanes(self);
-    }
+            #[inline(always)]
+            fn with_simd<S: pulp::Simd>(self, _simd: S) {
+                $run(self);
+            }
+        }
+    };
 }
+
+with_simd_by!(VjpLanes, vjp_lanes);
 
 #[inline(always)]
 fn vjp_lanes(v: VjpLanes<'_>) {
@@ -695,7 +720,7 @@ impl Fwd<F32x16> {
 /// `first + k` of `g` goes to `out[k]`, culled (`NON_FINITE`) also where one of its `channels`
 /// features is not finite. Bit-identical to [`project_one`].
 pub(crate) struct ProjectLanes<'a> {
-    pub g: &'a super::HostGaussians<'a, f32>,
+    pub g: &'a HostGaussians<'a, f32>,
     pub channels: usize,
     pub cam: &'a CamF<f32>,
     pub cam16: &'a CamF<F32x16>,
@@ -703,14 +728,7 @@ pub(crate) struct ProjectLanes<'a> {
     pub out: &'a mut [Result<Splat<f32>, f32>],
 }
 
-impl pulp::WithSimd for ProjectLanes<'_> {
-    type Output = ();
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        project_lanes(self);
-    }
-}
+with_simd_by!(ProjectLanes, project_lanes);
 
 #[inline(always)]
 fn project_lanes(v: ProjectLanes<'_>) {

@@ -2,7 +2,7 @@
 //! through `Fusion` (which is what `Device::wgpu(..)` uses), and differentiable through the
 //! same `Autodiff` node as the CPU kernels.
 //!
-//! Per render, on the device: projection ([`fn@kernels::project_forward`]), a radix sort of the
+//! Per render, on the device: projection ([`fn@project::project_forward`]), a radix sort of the
 //! Gaussians by depth ([`scan_sort::radix_sort`]), the tile counts in depth order and their
 //! exclusive scan ([`scan_sort::exclusive_scan`]), one 4-byte readback of the intersection
 //! count (to size the intersection buffers), emission of (tile, emission) pairs, a stable
@@ -12,11 +12,26 @@
 //! then sums each Gaussian's rows and applies the projection VJP: no float atomics, and the
 //! result does not depend on scheduling.
 //!
+//! The kernels, one module per stage as in [`crate::cpu`]: [`project`] (projection and its
+//! VJP), [`mod@bin`] (tile binning), [`raster`] (the blend and its backward pass),
+//! [`gather`] (the per-Gaussian sums of the backward's gradient rows), with what they share
+//! in [`common`], and [`scan_sort`] (prefix sum and radix sort). They follow the CPU kernels
+//! operation for operation (same row-wise power evaluation, same alpha cut-off, cap and
+//! transmittance stop, same culling and status codes), so that the two agree to rounding.
+//! Loops run over compile-time bounds or over per-splat tile rectangles.
+//!
 //! f32 only: f64 inputs are refused by [`crate::render`] on this backend.
 
 // `#[cube(launch)]` generates undocumented modules and launch functions per kernel.
 #[allow(missing_docs)]
-pub mod kernels;
+pub mod bin;
+pub mod common;
+#[allow(missing_docs)]
+pub mod gather;
+#[allow(missing_docs)]
+pub mod project;
+#[allow(missing_docs)]
+pub mod raster;
 #[allow(missing_docs)]
 pub mod scan_sort;
 
@@ -31,10 +46,12 @@ use burn_cubecl::tensor::CubeTensor;
 use cubecl::prelude::*;
 use cubecl::server::Handle;
 
-use crate::backend::{SplatBackend, SplatKernels, SplatPrimitives, SplatPrimitivesMetadata};
+use crate::backend::{
+    SplatBackend, SplatKernels, SplatPrimitives, SplatPrimitivesMetadata, splat_meta,
+};
 use crate::config::{AlphaCutoff, SplatConfig, TILE_SIZE};
-use kernels::{CAM, PROJ};
-use scan_sort::{Client, bits_for, elementwise_flat, exclusive_scan, radix_sort, zero};
+use common::{CAM, PROJ};
+use scan_sort::{Client, bits_for, buffer_arg, elementwise_flat, exclusive_scan, radix_sort, zero};
 
 /// Everything the forward pass produces: the `[H, W, C + 1]` image, the `[N, 4]` aux rows, and
 /// the `[H, W]` final transmittance and contributor counts the backward pass needs.
@@ -56,39 +73,18 @@ fn spec(shape: Vec<usize>, like: &TensorSpec) -> TensorSpec {
     TensorSpec::new(Shape::from(shape), like.dtype)
 }
 
+/// The outputs of [`SplatBackend::splat`] (its [`splat_meta`]), and the transmittance and
+/// contributor counts.
 fn forward_meta(inputs: &SplatPrimitivesMetadata, config: &SplatConfig) -> GpuForwardMetadata {
     let (h, w) = (config.camera.height as usize, config.camera.width as usize);
     let means = &inputs.means;
-    let n = means.shape[0];
-    let c = inputs.features.shape[1];
+    let (image, aux) = splat_meta(inputs, config);
     GpuForwardMetadata {
-        image: spec(vec![h, w, c + 1], means),
-        aux: spec(vec![n, 4], means),
+        image,
+        aux,
         t_final: spec(vec![h, w], means),
         n_contrib: spec(vec![h, w], means),
     }
-}
-
-/// Output metadata of [`SplatBackend::splat`] for the lazy (`Fusion`) implementation.
-pub fn splat_meta(
-    means: &TensorSpec,
-    quats: &TensorSpec,
-    scales: &TensorSpec,
-    opacities: &TensorSpec,
-    features: &TensorSpec,
-    xy_offsets: &TensorSpec,
-    config: &SplatConfig,
-) -> (TensorSpec, TensorSpec) {
-    let inputs = SplatPrimitivesMetadata {
-        means: means.clone(),
-        quats: quats.clone(),
-        scales: scales.clone(),
-        opacities: opacities.clone(),
-        features: features.clone(),
-        xy_offsets: xy_offsets.clone(),
-    };
-    let m = forward_meta(&inputs, config);
-    (m.image, m.aux)
 }
 
 /// The splatting kernels as a CubeCL backend extension: forward with the state the backward
@@ -132,7 +128,7 @@ fn buffer(t: CubeTensor, name: &str) -> (Handle, u32) {
 }
 
 fn arg(h: &Handle, len: u32) -> BufferArg {
-    unsafe { BufferArg::from_raw_parts(h.clone(), len.max(1) as usize) }
+    buffer_arg(h, len.max(1))
 }
 
 fn f32_bytes(v: &[f32]) -> Vec<u8> {
@@ -172,7 +168,7 @@ impl Inputs {
     }
 }
 
-/// The camera as the kernels read it (see [`kernels::CAM`]).
+/// The camera as the kernels read it (see [`common::CAM`]).
 fn camera_buffer(client: &Client, config: &SplatConfig) -> Handle {
     let c = &config.camera;
     let mut v = Vec::with_capacity(CAM as usize);
@@ -227,7 +223,7 @@ fn bin(client: &Client, x: &Inputs, config: &SplatConfig) -> Bins {
     let vals = words(n);
     let (count, dim) = elementwise_flat(n);
     if n > 0 {
-        kernels::project_forward::launch(
+        project::project_forward::launch(
             client,
             count.clone(),
             dim,
@@ -252,7 +248,7 @@ fn bin(client: &Client, x: &Inputs, config: &SplatConfig) -> Bins {
     let (_, order) = radix_sort(client, keys, vals, n, 32);
     let starts = words(n + 1);
     let (count1, dim1) = elementwise_flat(n + 1);
-    kernels::gather_counts::launch(
+    bin::gather_counts::launch(
         client,
         count1,
         dim1,
@@ -272,7 +268,7 @@ fn bin(client: &Client, x: &Inputs, config: &SplatConfig) -> Bins {
         let ikeys = words(total);
         let ivals = words(total);
         let gids = words(total);
-        kernels::emit_intersections::launch(
+        bin::emit_intersections::launch(
             client,
             count,
             dim,
@@ -287,7 +283,7 @@ fn bin(client: &Client, x: &Inputs, config: &SplatConfig) -> Bins {
         );
         let (skeys, svals) = radix_sort(client, ikeys, ivals, total, bits_for(num_tiles - 1));
         let (tc, td) = elementwise_flat(total);
-        kernels::finish_bins::launch(
+        bin::finish_bins::launch(
             client,
             tc,
             td,
@@ -377,7 +373,7 @@ fn gpu_forward(p: SplatPrimitives<CubeBackend>, config: &SplatConfig) -> GpuForw
     let t_final = client.empty(pixels as usize * 4);
     let n_contrib = client.empty(pixels as usize * 4);
     let bg = background_buffer(&client, config);
-    kernels::rasterize_forward::launch(
+    raster::rasterize_forward::launch(
         &client,
         CubeCount::Static(b.tiles.0, b.tiles.1, 1),
         CubeDim::new_2d(TILE_SIZE, TILE_SIZE),
@@ -436,7 +432,7 @@ fn gpu_backward(
         let (tiles_x, tiles_y) = b.tiles;
         let row_starts = client.empty((tiles_y as usize + 1) * 4);
         let (count, dim) = elementwise_flat(b.total);
-        kernels::tile_row_starts::launch(
+        gather::tile_row_starts::launch(
             &client,
             count,
             dim,
@@ -463,7 +459,7 @@ fn gpu_backward(
                 continue;
             }
             zero(&client, &rows, len * values);
-            kernels::rasterize_backward::launch(
+            raster::rasterize_backward::launch(
                 &client,
                 CubeCount::Static(tiles_x, hi - lo, 1),
                 CubeDim::new_2d(TILE_SIZE, TILE_SIZE),
@@ -484,7 +480,7 @@ fn gpu_backward(
                 config.cutoff == AlphaCutoff::Smooth,
             );
             let (count, dim) = elementwise_flat(n);
-            kernels::accumulate_band::launch(
+            gather::accumulate_band::launch(
                 &client,
                 count,
                 dim,
@@ -510,7 +506,7 @@ fn gpu_backward(
     let g_offsets = zeros(2 * n);
     if n > 0 && b.total > 0 {
         let (count, dim) = elementwise_flat(n);
-        kernels::project_backward::launch(
+        project::project_backward::launch(
             &client,
             count,
             dim,
@@ -562,22 +558,9 @@ impl SplatGpuOps for CubeBackend {
 
 impl SplatBackend for CubeBackend {
     fn splat(
-        means: FloatTensor<Self>,
-        quats: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        opacities: FloatTensor<Self>,
-        features: FloatTensor<Self>,
-        xy_offsets: FloatTensor<Self>,
+        inputs: SplatPrimitives<Self>,
         config: SplatConfig,
     ) -> (FloatTensor<Self>, FloatTensor<Self>) {
-        let inputs = SplatPrimitives {
-            means,
-            quats,
-            scales,
-            opacities,
-            features,
-            xy_offsets,
-        };
         let out = Self::splat_gpu_forward(inputs, config);
         (out.image, out.aux)
     }
@@ -616,21 +599,14 @@ macro_rules! gpu_kernels {
                 state: Self::SplatState,
                 grad: FloatTensor<Self>,
             ) -> [FloatTensor<Self>; 6] {
-                let g = <$ty as SplatGpuOps>::splat_gpu_backward(
+                <$ty as SplatGpuOps>::splat_gpu_backward(
                     state.inputs,
                     state.t_final,
                     state.n_contrib,
                     grad,
                     state.config,
-                );
-                [
-                    g.means,
-                    g.quats,
-                    g.scales,
-                    g.opacities,
-                    g.features,
-                    g.xy_offsets,
-                ]
+                )
+                .into_array()
             }
         }
     };

@@ -96,20 +96,19 @@ fn copy_one(src: &[u32], dst: &mut [u32], index: u32) {
     }
 }
 
+/// The kernel argument for the first `len` elements of `data`.
+pub(crate) fn buffer_arg(data: &Handle, len: u32) -> BufferArg {
+    // SAFETY: every caller passes a buffer holding at least `len` 4-byte elements.
+    unsafe { BufferArg::from_raw_parts(data.clone(), len as usize) }
+}
+
 /// Launches `fill_u32`.
 pub fn fill(client: &Client, data: &Handle, value: u32, len: u32) {
     if len == 0 {
         return;
     }
     let (count, dim) = elementwise_flat(len);
-    fill_u32::launch(
-        client,
-        count,
-        dim,
-        unsafe { BufferArg::from_raw_parts(data.clone(), len as usize) },
-        value,
-        len,
-    );
+    fill_u32::launch(client, count, dim, buffer_arg(data, len), value, len);
 }
 
 /// Zeroes `data[0..len]` (of any 4-byte element type: `0.0f32` is all zero bits).
@@ -146,8 +145,8 @@ pub fn exclusive_scan(client: &Client, data: &Handle, len: u32) {
         client,
         grid(blocks),
         CubeDim::new_1d(THREADS),
-        unsafe { BufferArg::from_raw_parts(data.clone(), len as usize) },
-        unsafe { BufferArg::from_raw_parts(sums.clone(), blocks as usize) },
+        buffer_arg(data, len),
+        buffer_arg(&sums, blocks),
         len,
         blocks,
     );
@@ -158,8 +157,8 @@ pub fn exclusive_scan(client: &Client, data: &Handle, len: u32) {
             client,
             count,
             dim,
-            unsafe { BufferArg::from_raw_parts(data.clone(), len as usize) },
-            unsafe { BufferArg::from_raw_parts(sums, blocks as usize) },
+            buffer_arg(data, len),
+            buffer_arg(&sums, blocks),
             len,
         );
     }
@@ -172,8 +171,8 @@ pub fn read_u32(client: &Client, data: &Handle, len: u32, index: u32) -> u32 {
         client,
         CubeCount::Static(1, 1, 1),
         CubeDim::new_1d(1),
-        unsafe { BufferArg::from_raw_parts(data.clone(), len as usize) },
-        unsafe { BufferArg::from_raw_parts(one.clone(), 1) },
+        buffer_arg(data, len),
+        buffer_arg(&one, 1),
         index,
     );
     let bytes = client.read_one_unchecked(one);
@@ -284,15 +283,14 @@ pub fn radix_sort(
         client.empty(len as usize * 4),
     );
     let passes = bits.min(32).div_ceil(RADIX_BITS);
-    let arg = |h: &Handle, n: u32| unsafe { BufferArg::from_raw_parts(h.clone(), n as usize) };
     for pass in 0..passes {
         let shift = pass * RADIX_BITS;
         radix_count::launch(
             client,
             grid(chunks),
             CubeDim::new_1d(THREADS),
-            arg(&src.0, len),
-            arg(&hist, hist_len),
+            buffer_arg(&src.0, len),
+            buffer_arg(&hist, hist_len),
             len,
             shift,
             chunks,
@@ -302,11 +300,11 @@ pub fn radix_sort(
             client,
             grid(chunks),
             CubeDim::new_1d(THREADS),
-            arg(&src.0, len),
-            arg(&src.1, len),
-            arg(&hist, hist_len),
-            arg(&dst.0, len),
-            arg(&dst.1, len),
+            buffer_arg(&src.0, len),
+            buffer_arg(&src.1, len),
+            buffer_arg(&hist, hist_len),
+            buffer_arg(&dst.0, len),
+            buffer_arg(&dst.1, len),
             len,
             shift,
             chunks,
