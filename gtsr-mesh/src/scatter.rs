@@ -19,7 +19,7 @@
 //! is not mistaken for scattering (and inverted, amplifying the noise for nothing).
 //!
 //! ```
-//! use gtsr_eval::scatter::{Scatter, deconvolve, gaussian_blur};
+//! use gtsr_mesh::scatter::{Scatter, deconvolve, gaussian_blur};
 //!
 //! // A bright square, blurred by scattering as `0.5 L + 0.5 G_3 * L`.
 //! let (w, h) = (32, 32);

@@ -27,7 +27,7 @@
 //! `s / 2` pixels (their count and mean point), so every width costs about the same.
 //!
 //! ```
-//! use gtsr_eval::subsurface::SurfaceMap;
+//! use lab::subsurface::SurfaceMap;
 //!
 //! // A flat patch facing the camera at depth 2 (f = 100 px): S = 1 / r^2 away from its border.
 //! let (w, h, f) = (64usize, 64usize, 100.0f32);
