@@ -373,7 +373,7 @@ pub const HULL_BLIND_RADII: f32 = 0.01;
 /// truth is what [`SEEN_MIN_EYES`] of the training `cameras`' centres see (unblocked
 /// segments), [`SCORE_SAMPLES`] samples per mesh with seed 0, and the F-score threshold 1 % of
 /// the ground truth's radius (half the longest side of its box).
-/// With `hull` (the masks alone, [`crate::hull::masks_mesh`]) both carry the [`HullBlind`]
+/// With `hull` (the masks alone, [`gtsr_mesh::hull::masks_mesh`]) both carry the [`HullBlind`]
 /// split at [`HULL_BLIND_RADII`].
 pub fn score_against_ground_truth(
     pred: &TriMesh,

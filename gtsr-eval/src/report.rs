@@ -60,7 +60,7 @@ pub struct RunMetrics {
     /// baseline beside `mesh`.
     #[serde(default)]
     pub masks_alone: Option<MeshMetrics>,
-    /// The mesh fused from the rendered depth alone ([`crate::MeshConfig::depth_only`])
+    /// The mesh fused from the rendered depth alone ([`gtsr_mesh::MeshConfig::depth_only`])
     /// against the seen ground truth, when the scene has masks (without them `mesh` is one).
     #[serde(default)]
     pub mesh_depth_only: Option<MeshMetrics>,
@@ -68,7 +68,7 @@ pub struct RunMetrics {
     #[serde(default)]
     pub test_depth: Option<DepthMetrics>,
     /// The same against the ground truth averaged over each pixel's area
-    /// ([`crate::MeshRaycaster::render_area`]): what a rendering that blends a pixel's
+    /// ([`gtsr_mesh::raycast::MeshRaycaster::render_area`]): what a rendering that blends a pixel's
     /// footprint can be held to at occluding edges.
     #[serde(default)]
     pub test_depth_area: Option<DepthMetrics>,

@@ -163,7 +163,7 @@ pub struct MeshConfig {
     /// taken from the trained model's render of that view (C_SH, the images as the Gaussians
     /// reproduce them, without the images' per-pixel noise) instead of the image (0: the
     /// images alone), so that the refined mesh follows the model. The caller renders it
-    /// ([`MasksAlone::with_rendered_radiance`]).
+    /// ([`crate::MasksAlone::with_rendered_radiance`]).
     #[arg(skip = DEFAULT_SHADING_RADIANCE_RENDERED)]
     pub shading_radiance_rendered: f32,
     /// With [`MeshConfig::shading_depth`]: the depth's offsets are trusted inward beyond this
@@ -300,7 +300,7 @@ pub struct MeshConfig {
     /// views agree with it ([`crate::consistency::filter_consistent`]); the others cast no vote.
     #[arg(skip)]
     pub depth_consistency: Option<ConsistencySettings>,
-    /// Carving: bound the mesh by the hull of the masks' edges ([`MasksAlone::with_edge_distance`],
+    /// Carving: bound the mesh by the hull of the masks' edges ([`crate::MasksAlone::with_edge_distance`],
     /// where the masks carry it; gtsr-train builds it when this is set) rather than by the
     /// masks' coverage interpolated between pixel centres (the baseline).
     #[arg(skip = true)]
@@ -309,7 +309,7 @@ pub struct MeshConfig {
     /// ([`crate::hollow::read_hollow`], where the masks carry the images and the fusion views
     /// are their size), and carve the dark pixels that far behind the lid. The reading
     /// depends on the masks and images alone, so a run searches once
-    /// ([`MasksAlone::hollow_reading`]) and every extraction along it uses the same. A scene
+    /// ([`crate::MasksAlone::hollow_reading`]) and every extraction along it uses the same. A scene
     /// without dark pixels costs one scattering fit.
     #[arg(long = "hollow-search", id = "mesh.hollow_search", value_name = "BOOL",
           default_value_t = true, action = clap::ArgAction::Set)]

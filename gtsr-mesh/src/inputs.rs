@@ -21,18 +21,18 @@ pub struct FusionView<'a> {
     /// Mask in `[0, 1]`.
     pub mask: &'a [f32],
     /// Camera-space normals, 3 per pixel (zero where nothing was rendered; premultiplied
-    /// normals do), for [`MeshConfig::shading_normals_rendered`]; may be empty otherwise.
+    /// normals do), for [`crate::MeshConfig::shading_normals_rendered`]; may be empty otherwise.
     pub normal: &'a [f32],
 }
 
-/// Everything [`extract_mesh`] reads besides the settings.
+/// Everything [`crate::extract_mesh`] reads besides the settings.
 #[derive(Clone, Copy, Debug)]
 pub struct FusionInputs<'a> {
     /// The depth maps and masks, one per training view.
     pub views: &'a [FusionView<'a>],
     /// Whether every view's mask is a real mask (not the coverage).
     pub masked: bool,
-    /// The masks at the dataset's resolution (with [`Fusion::Carve`] on a masked scene).
+    /// The masks at the dataset's resolution (with [`crate::Fusion::Carve`] on a masked scene).
     pub masks: Option<&'a MasksAlone>,
     /// The cameras whose pixel footprint sets the TSDF truncation (the training cameras).
     pub footprint_cameras: &'a [Camera],
@@ -40,7 +40,7 @@ pub struct FusionInputs<'a> {
     pub bounds: (Vec3, Vec3),
     /// A quicker, coarser TSDF (2.5 times the voxel), for evaluations during training (the
     /// carving's shading refinement is made quicker by the settings:
-    /// [`MeshConfig::with_shading_rounds`]).
+    /// [`crate::MeshConfig::with_shading_rounds`]).
     pub coarse: bool,
 }
 

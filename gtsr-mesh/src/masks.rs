@@ -19,12 +19,12 @@ pub struct MasksAlone {
     /// The grid spacing of [`MasksAlone::mesh`] ([`crate::hull::masks_voxel`]).
     pub voxel: f32,
     /// The views' linear radiance at the masks' size, one value per pixel
-    /// ([`crate::shading::linear_radiance`]), for [`MeshConfig::shading_anchor`]; `None`: the
+    /// ([`crate::shading::linear_radiance`]), for [`crate::MeshConfig::shading_anchor`]; `None`: the
     /// mesh is not refined by the shading.
     pub radiance: Option<Vec<Vec<f32>>>,
     /// The images' own linear radiance, as [`MasksAlone::with_radiance`] gave it (kept when
     /// [`MasksAlone::with_rendered_radiance`] blends a render into `radiance`), for
-    /// [`MeshConfig::hollow_search`].
+    /// [`crate::MeshConfig::hollow_search`].
     pub images: Option<Vec<Vec<f32>>>,
     /// The hull from the masks' edges ([`MasksAlone::with_edge_distance`]); `None`: the
     /// extraction is bounded by [`MasksAlone::mesh`]'s field.
@@ -102,7 +102,7 @@ impl MasksAlone {
 
     /// These masks with each view's radiance blended with `rendered` (the same views' linear
     /// radiance as a model renders them, at the masks' size): `(1 - share)` of the image and
-    /// `share` of the render ([`MeshConfig::shading_radiance_rendered`]). Errors without
+    /// `share` of the render ([`crate::MeshConfig::shading_radiance_rendered`]). Errors without
     /// [`MasksAlone::radiance`], on a share outside `[0, 1]`, and where the renders' count or
     /// sizes differ from the masks' or hold a value that is not finite.
     pub fn with_rendered_radiance(mut self, rendered: &[Vec<f32>], share: f32) -> Result<Self> {

@@ -28,7 +28,7 @@ pub struct MeshSettings {
     /// surface Gaussians at each extraction.
     pub bounds: Option<(Vec3, Vec3)>,
     /// The masks alone scored against the ground truth the training cameras see
-    /// ([`score_masks_alone`], once per run): the baseline beside every mesh.
+    /// ([`crate::evaluation::score_masks_alone`], once per run): the baseline beside every mesh.
     pub masks_alone: Option<MeshMetrics>,
     /// The shading refinement's rounds in the evaluations along the run (0: none;
     /// [`gtsr_mesh::MeshConfig::with_shading_rounds`]).
