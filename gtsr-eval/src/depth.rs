@@ -19,6 +19,11 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
 
+/// A pixel looks into a concavity the masks cannot see where the truth lies more than this
+/// many footprints (at the truth's depth) behind the masks' own mesh
+/// ([`DepthComparison::add_with_bound`]).
+pub const CONCAVE_GAP_FOOTPRINTS: f32 = 3.0;
+
 /// The probabilities of [`DepthMetrics::depth_signed_quantiles`].
 pub const DEPTH_QUANTILES: [f64; 5] = [0.05, 0.25, 0.5, 0.75, 0.95];
 
@@ -56,6 +61,15 @@ pub struct DepthMetrics {
     /// Mean `depth - true depth` over those pixels; `None` when there are none.
     #[serde(default)]
     pub depth_mean_signed_far_side: Option<f64>,
+    /// The share of the pixels compared that look into a concavity the masks cannot see
+    /// ([`CONCAVE_GAP_FOOTPRINTS`]; 0 without the masks' mesh).
+    #[serde(default)]
+    pub concave_share: f64,
+    /// Mean `depth - true depth` over those pixels, in footprints at the truth's depth (the
+    /// truth's depth over the focal length): how far in front of a concavity's inside
+    /// (negative) the rendered surface lies. `None` when there are none.
+    #[serde(default)]
+    pub depth_mean_signed_concave_fp: Option<f64>,
     /// Mean angle between the rendered and the true normal, degrees.
     pub normal_mean_deg: f64,
     /// Median of that angle, degrees.
@@ -75,6 +89,10 @@ pub struct DepthComparison {
     at_edge: Vec<bool>,
     /// Per entry of `depth_err`, whether its pixel lies just behind one (its far side).
     far_side: Vec<bool>,
+    /// Per entry of `depth_err`, whether its pixel looks into a concavity the masks cannot see.
+    concave: Vec<bool>,
+    /// Per entry of `depth_err`, the error in footprints at the truth's depth.
+    err_fp: Vec<f32>,
     normal_deg: Vec<f32>,
     truth_pixels: usize,
 }
@@ -97,6 +115,21 @@ impl DepthComparison {
         normal: &[f32],
         select: &[bool],
     ) -> Result<()> {
+        self.add_with_bound(truth, depth, normal, select, None)
+    }
+
+    /// [`DepthComparison::add`], with the masks' own mesh seen from the same camera (`bound`,
+    /// the size of `truth`): the pixels where the truth lies more than
+    /// [`CONCAVE_GAP_FOOTPRINTS`] behind it (or where it misses) also count apart
+    /// ([`DepthMetrics::depth_mean_signed_concave_fp`]).
+    pub fn add_with_bound(
+        &mut self,
+        truth: &MeshDepth,
+        depth: &[f32],
+        normal: &[f32],
+        select: &[bool],
+        bound: Option<&MeshDepth>,
+    ) -> Result<()> {
         let n = truth.width * truth.height;
         let size = format!("{}x{} = {n}", truth.width, truth.height);
         if depth.len() != n {
@@ -109,6 +142,11 @@ impl DepthComparison {
         }
         if select.len() != n {
             return Err(MeshError::size("pixel selection", size, select.len()).into());
+        }
+        if let Some(b) = bound
+            && b.depth.len() != n
+        {
+            return Err(MeshError::size("masks' mesh depth", size, b.depth.len()).into());
         }
         let edges = truth.occluding_edges(EDGE_FOOTPRINTS);
         let occluders = truth.occluders(EDGE_FOOTPRINTS);
@@ -127,6 +165,12 @@ impl DepthComparison {
             self.depth_err.push(d - t);
             self.at_edge.push(edges[p]);
             self.far_side.push(occluders[p] > 0.0);
+            let footprint = t / truth.focal;
+            self.concave.push(bound.is_some_and(|b| {
+                let m = b.depth[p];
+                m <= 0.0 || !m.is_finite() || t - m > CONCAVE_GAP_FOOTPRINTS * footprint
+            }));
+            self.err_fp.push((d - t) / footprint);
             let cos = (nv / nl).dot(truth.normal[p]).clamp(-1.0, 1.0);
             self.normal_deg.push(cos.acos().to_degrees());
         }
@@ -165,6 +209,9 @@ impl DepthComparison {
         };
         let (off_sum, off_n) = sum_where(&self.at_edge, false);
         let (far_sum, far_n) = sum_where(&self.far_side, true);
+        let (concave_sum, concave_n) = (self.err_fp.iter().zip(&self.concave))
+            .filter(|(_, c)| **c)
+            .fold((0.0f64, 0usize), |(s, n), (e, _)| (s + *e as f64, n + 1));
         Some(DepthMetrics {
             depth_mean_abs: mean(&abs),
             depth_median_abs: median(abs),
@@ -176,6 +223,8 @@ impl DepthComparison {
             depth_mean_signed_off_edges: (off_n > 0).then(|| off_sum / off_n as f64),
             far_side_share: far_n as f64 / k as f64,
             depth_mean_signed_far_side: (far_n > 0).then(|| far_sum / far_n as f64),
+            concave_share: concave_n as f64 / k as f64,
+            depth_mean_signed_concave_fp: (concave_n > 0).then(|| concave_sum / concave_n as f64),
             normal_mean_deg: mean(&self.normal_deg),
             normal_median_deg: median(self.normal_deg.clone()),
             pixels: k,
@@ -390,6 +439,58 @@ mod tests {
         assert!((m.depth_mean_signed_far_side.unwrap() + 2.0).abs() < 1e-5);
         assert!(m.depth_mean_signed_off_edges.unwrap().abs() < 1e-6);
         assert!((m.depth_mean_signed + 2.0 * 16.0 / 256.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn pixels_behind_the_bound_count_as_concave_in_footprints() {
+        // The truth: a far plane at z = 4 whose left half (x < 0.05) the masks' mesh covers
+        // with a lid at z = 2, the right half flush (the bound is the truth there).
+        let truth_mesh = square(4.0);
+        let mut bound_mesh = square(4.0);
+        let lid = [(-2.0, -2.0), (0.05, -2.0), (0.05, 2.0), (-2.0, 2.0)];
+        bound_mesh
+            .positions
+            .extend(lid.iter().map(|&(x, y)| Vec3::new(x, y, 2.0)));
+        bound_mesh.triangles.extend([[4, 5, 6], [4, 6, 7]]);
+        let cam = camera_on_axis(16);
+        let truth = MeshRaycaster::new(&truth_mesh, "plane")
+            .unwrap()
+            .render(&cam);
+        let bound = MeshRaycaster::new(&bound_mesh, "lid").unwrap().render(&cam);
+        // A rendering that reads the lid over the concavity, exact elsewhere.
+        let depth = bound.depth.clone();
+        let normal: Vec<f32> = truth.normal.iter().flat_map(|v| v.to_array()).collect();
+        let mut c = DepthComparison::new();
+        c.add_with_bound(&truth, &depth, &normal, &[true; 256], Some(&bound))
+            .unwrap();
+        let m = c.finish().unwrap();
+        // The pixels that see the lid: about half the image (the lid's edge projects a little
+        // right of the centre).
+        let lid = bound.depth.iter().filter(|d| **d < 3.0).count();
+        assert!((100..=160).contains(&lid), "{lid}");
+        assert!(
+            (m.concave_share - lid as f64 / 256.0).abs() < 1e-12,
+            "{}",
+            m.concave_share
+        );
+        // Two units in front at z = 4: 2 / (4 / focal) footprints.
+        let expected = -2.0 / (4.0 / f64::from(truth.focal));
+        let got = m.depth_mean_signed_concave_fp.unwrap();
+        assert!((got - expected).abs() < 1e-3, "{got} against {expected}");
+        // Without the bound no pixel is concave.
+        let mut plain = DepthComparison::new();
+        plain.add(&truth, &depth, &normal, &[true; 256]).unwrap();
+        let m = plain.finish().unwrap();
+        assert_eq!(m.concave_share, 0.0);
+        assert!(m.depth_mean_signed_concave_fp.is_none());
+        // A bound of the wrong size is an error.
+        let small = MeshRaycaster::new(&bound_mesh, "lid")
+            .unwrap()
+            .render(&camera_on_axis(8));
+        assert!(
+            c.add_with_bound(&truth, &depth, &normal, &[true; 256], Some(&small))
+                .is_err()
+        );
     }
 
     #[test]

@@ -27,7 +27,7 @@ mod report;
 mod timeline;
 mod truth;
 
-pub use depth::{DEPTH_QUANTILES, DepthComparison, DepthMetrics};
+pub use depth::{CONCAVE_GAP_FOOTPRINTS, DEPTH_QUANTILES, DepthComparison, DepthMetrics};
 pub use error::{EvalError, Result};
 pub use metrics::{
     HULL_BLIND_RADII, HullBlind, ImageRef, MeshMetrics, SCORE_SAMPLES, SEEN_MIN_EYES, chamfer,

@@ -196,6 +196,12 @@ pub(crate) fn test_view_geometry(
     area: bool,
 ) -> Result<(Option<DepthMetrics>, Option<DepthMetrics>)> {
     let caster = MeshRaycaster::new(gt, "ground-truth mesh")?;
+    let bound = match &settings.masks {
+        Some(m) if !m.mesh.triangles.is_empty() => {
+            Some(MeshRaycaster::new(&m.mesh, "masks' mesh")?)
+        }
+        _ => None,
+    };
     let mut cmp = DepthComparison::new();
     let mut cmp_area = area.then(DepthComparison::new);
     let readout = readout(model, settings);
@@ -213,11 +219,12 @@ pub(crate) fn test_view_geometry(
                 .collect(),
             None => cov.iter().map(|c| *c >= 0.5).collect(),
         };
-        cmp.add(&truth, &depth, &normal, &select)
+        let bound_depth = bound.as_ref().map(|b| b.render(&data.camera));
+        cmp.add_with_bound(&truth, &depth, &normal, &select, bound_depth.as_ref())
             .with_context(|| format!("comparing the depth of test view {}", data.name))?;
         if let Some(c) = cmp_area.as_mut() {
             let truth = caster.render_area(&data.camera, AREA_RAYS)?;
-            c.add(&truth, &depth, &normal, &select)
+            c.add_with_bound(&truth, &depth, &normal, &select, bound_depth.as_ref())
                 .with_context(|| format!("comparing the depth of test view {}", data.name))?;
         }
     }

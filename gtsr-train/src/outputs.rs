@@ -286,6 +286,15 @@ pub fn finish(
             100.0 * d.far_side_share,
             signed_x1e3(d.depth_mean_signed_far_side)
         );
+        if let Some(c) = d.depth_mean_signed_concave_fp {
+            println!(
+                "  {:.1} % of the pixels look into a concavity the masks cannot see (the truth \
+                 more than {} footprints behind the masks' mesh): mean signed depth error there \
+                 {c:+.2} footprints",
+                100.0 * d.concave_share,
+                gtsr_eval::CONCAVE_GAP_FOOTPRINTS
+            );
+        }
     }
     if let Some(d) = &e.depth_area {
         println!(

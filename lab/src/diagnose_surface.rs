@@ -46,13 +46,91 @@ pub struct DiagnoseSurfaceArgs {
     /// Where the markdown report goes (default: `diagnosis.md` in the run folder).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Splits the Gaussians by where their nearest ground truth lies: farther than this from
+    /// the masks' mesh (at the masks' own resolution, scene units; the hull-blind part, where
+    /// a lid over a concavity the masks cannot see lies far outside the truth) or not.
+    #[arg(long)]
+    pub hull_blind: Option<f32>,
+    /// With `--hull-blind`: also differentiate this many probes, surface Gaussians placed flat
+    /// on the hull-blind ground truth (seeded, area-uniform; one footprint wide, opacity 0.5,
+    /// the colour of the nearest trained Gaussian): whether the terms would keep a surface
+    /// on the true inside, or push it out to the lid. The probes join the model for the
+    /// diagnosis only.
+    #[arg(long, default_value_t = 0)]
+    pub probes: usize,
     /// The concavity comparison.
     #[command(flatten)]
     pub concavity: ConcavityArgs,
 }
 
+/// The rows of one trained model that a table reports on.
+struct Group {
+    label: &'static str,
+    members: Vec<usize>,
+}
+
+/// Appends `count` probes to the trainer's surface set: flat Gaussians on the hull-blind part of
+/// `gt` (farther than `gap` from `hull`), one `footprint` wide, opacity 0.5, each with the
+/// colour and material of the trained surface Gaussian nearest to it. Returns their indices.
+fn add_probes(
+    trainer: &mut gtsr_model::trainer::Trainer,
+    gt: &gtsr_data::ply::TriMesh,
+    hull: &SignedDistance<'_>,
+    gap: f32,
+    footprint: f32,
+    count: usize,
+) -> Result<Vec<usize>> {
+    let samples = gtsr_mesh::mesh::sample_surface(gt, 50 * count, 7, "ground-truth mesh")?;
+    let spots: Vec<(Vec3, Vec3)> = (samples.points.iter().zip(&samples.normals))
+        .filter(|(p, _)| hull.query(**p).0.abs() > gap)
+        .take(count)
+        .map(|(p, n)| (*p, *n))
+        .collect();
+    if spots.is_empty() {
+        bail!("no ground truth lies farther than {gap} from the masks' mesh: no probe to place");
+    }
+    let device = trainer.model().device();
+    let mut host = trainer.model().surface.to_host();
+    let (means, _) = host.column(ParamKind::Means).context("means")?;
+    let means: Vec<Vec3> = means.chunks_exact(3).map(Vec3::from_slice).collect();
+    let floor = trainer.model().surface_opacity_floor;
+    let first = host.n;
+    for (p, normal) in &spots {
+        let nearest = (0..means.len())
+            .min_by(|a, b| {
+                means[*a]
+                    .distance_squared(*p)
+                    .total_cmp(&means[*b].distance_squared(*p))
+            })
+            .context("an empty surface set")?;
+        let mut row = host.row(nearest);
+        let q = glam::Quat::from_rotation_arc(Vec3::Z, normal.normalize());
+        for (k, (kind, _, _)) in host.columns.iter().enumerate() {
+            match kind {
+                ParamKind::Means => row[k] = p.to_array().to_vec(),
+                ParamKind::Rotations => row[k] = vec![q.w, q.x, q.y, q.z],
+                ParamKind::LogScales => {
+                    row[k] = vec![footprint.ln(), footprint.ln(), (0.05 * footprint).ln()]
+                }
+                ParamKind::Opacity => {
+                    // The logit whose floored opacity is 0.5.
+                    let o = ((0.5 - floor) / (1.0 - floor)).clamp(1e-3, 1.0 - 1e-3);
+                    row[k] = vec![gtsr_model::gaussians::logit(o) as f32];
+                }
+                _ => {}
+            }
+        }
+        host.push_row(&row);
+    }
+    let last = host.n;
+    trainer.model_mut().surface = host.to_device(&device);
+    Ok((first..last).collect())
+}
+
 /// Bin edges in training-pixel footprints (signed distance to the ground truth).
-const EDGES: [f32; 9] = [-4.0, -2.0, -1.0, -0.5, -0.25, 0.25, 0.5, 1.0, 2.0];
+const EDGES: [f32; 12] = [
+    -4.0, -2.0, -1.0, -0.5, -0.25, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0,
+];
 
 fn bin_of(sd_fp: f32) -> usize {
     EDGES.iter().take_while(|e| sd_fp >= **e).count()
@@ -173,16 +251,79 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     }
     let footprint = median_pixel_footprint(scene.train.iter().map(|v| &v.camera), Vec3::ZERO);
 
+    let (groups, probe_count) = match args.hull_blind {
+        Some(gap) => {
+            let (_, masks) = gtsr_eval::native_masks_mesh(&args.data)?;
+            let hull = SignedDistance::new(&masks, "masks' mesh")?;
+            let probes = if args.probes > 0 {
+                add_probes(&mut trainer, &gt, &hull, gap, footprint, args.probes)?
+            } else {
+                Vec::new()
+            };
+            let host = trainer.model().surface.to_host();
+            let (means, _) = host.column(ParamKind::Means).context("means")?;
+            let trained = host.n - probes.len();
+            let (mut blind, mut seen) = (Vec::new(), Vec::new());
+            for (i, p) in means.chunks_exact(3).take(trained).enumerate() {
+                let p = Vec3::from_slice(p);
+                let (d, normal) = sdf.query(p);
+                if hull.query(p - d * normal).0.abs() > gap {
+                    blind.push(i);
+                } else {
+                    seen.push(i);
+                }
+            }
+            let count = probes.len();
+            let mut g = vec![
+                Group {
+                    label: "nearest truth the masks place",
+                    members: seen,
+                },
+                Group {
+                    label: "nearest truth hull-blind",
+                    members: blind,
+                },
+            ];
+            if count > 0 {
+                g.push(Group {
+                    label: "probes on the hull-blind truth",
+                    members: probes,
+                });
+            }
+            (g, count)
+        }
+        None => {
+            if args.probes > 0 {
+                bail!("--probes needs --hull-blind");
+            }
+            let n = trainer.model().surface.len();
+            (
+                vec![Group {
+                    label: "all surface Gaussians",
+                    members: (0..n).collect(),
+                }],
+                0,
+            )
+        }
+    };
     let surface = trainer.model().surface.to_host();
     let (means, _) = surface.column(ParamKind::Means).context("means")?;
     let means: Vec<Vec3> = means.chunks_exact(3).map(Vec3::from_slice).collect();
     let opacity = host_vec(trainer.model().opacities(&trainer.model().surface));
     let n = means.len();
+    // The view-dependent colour each Gaussian carries: the root of the summed squares of its
+    // higher SH coefficients (0 at degree 0).
+    let view_dependence: Vec<f32> = match surface.column(ParamKind::ShRest) {
+        Some((rest, w)) => rest
+            .chunks_exact(w)
+            .map(|r| r.iter().map(|c| c * c).sum::<f32>().sqrt())
+            .collect(),
+        None => vec![0.0; n],
+    };
     let located: Vec<(f32, Vec3)> = means.iter().map(|p| sdf.query(*p)).collect();
     let bins: Vec<usize> = located.iter().map(|(d, _)| bin_of(d / footprint)).collect();
-    let nb = EDGES.len() + 1;
 
-    // Per term: per bin, summed descent on the logit and along the normal.
+    // Per term: per Gaussian, summed descent on the logit and along the normal.
     let mut term_names: Vec<&'static str> = Vec::new();
     let mut sums: Vec<Vec<(f64, f64)>> = Vec::new();
     for k in 0..args.views {
@@ -208,89 +349,49 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
                 Some(i) => i,
                 None => {
                     term_names.push(name);
-                    sums.push(vec![(0.0, 0.0); nb]);
+                    sums.push(vec![(0.0, 0.0); n]);
                     term_names.len() - 1
                 }
             };
             for i in 0..n {
                 let g = Vec3::from_slice(&g_means[3 * i..3 * i + 3]);
-                let normal = located[i].1;
-                let b = bins[i];
-                sums[ti][b].0 -= g_logit[i] as f64;
-                sums[ti][b].1 -= g.dot(normal) as f64;
+                sums[ti][i].0 -= g_logit[i] as f64;
+                sums[ti][i].1 -= g.dot(located[i].1) as f64;
             }
         }
         println!("view {} of {} differentiated", k + 1, args.views);
     }
 
-    let mut counts = vec![0usize; nb];
-    let mut op_bins: Vec<Vec<f32>> = vec![Vec::new(); nb];
-    for i in 0..n {
-        counts[bins[i]] += 1;
-        op_bins[bins[i]].push(opacity[i]);
-    }
-    for o in op_bins.iter_mut() {
-        o.sort_by(f32::total_cmp);
-    }
     let mut md = format!(
-        "# Surface diagnosis of {} ({}, step {})\n\n{} surface Gaussians; training-pixel \
+        "# Surface diagnosis of {} ({}, step {})\n\n{} surface Gaussians{}; training-pixel \
          footprint {:.4}; {} views differentiated. Signed distance to the ground truth in \
          footprints (+: outside). Descent = minus the gradient summed over the views, mean per \
          Gaussian of the bin: on the opacity logit (+: more opaque) and along the outward normal \
-         (+: outward), x1e6.\n\n",
+         of the nearest truth (+: outward, away from it), x1e6. View-dependent SH: the mean \
+         root of the summed squares of the higher SH coefficients (what lets a lid show a \
+         different colour to each view).\n",
         args.run.display(),
         scene_name(&args.data),
         trainer.steps_done(),
-        n,
+        n - probe_count,
+        if probe_count > 0 {
+            format!(" and {probe_count} probes")
+        } else {
+            String::new()
+        },
         footprint,
         args.views
     );
-    md.push_str("| signed distance (fp) | Gaussians | share | opacity p10 / p50 / p90 |");
-    for t in &term_names {
-        md.push_str(&format!(" {t} logit / normal |"));
-    }
-    md.push('\n');
-    md.push_str("|---|---:|---:|---|");
-    for _ in &term_names {
-        md.push_str("---|");
-    }
-    md.push('\n');
-    for b in 0..nb {
-        if counts[b] == 0 {
-            continue;
-        }
-        let o = &op_bins[b];
-        md.push_str(&format!(
-            "| {} | {} | {:.1} % | {:.3} / {:.3} / {:.3} |",
-            bin_label(b),
-            counts[b],
-            100.0 * counts[b] as f64 / n as f64,
-            percentile(o, 0.1),
-            percentile(o, 0.5),
-            percentile(o, 0.9)
+    for group in &groups {
+        md.push_str(&group_table(
+            group,
+            &bins,
+            &opacity,
+            &view_dependence,
+            &term_names,
+            &sums,
         ));
-        for s in &sums {
-            let c = counts[b] as f64;
-            md.push_str(&format!(
-                " {:+.2} / {:+.2} |",
-                1e6 * s[b].0 / c,
-                1e6 * s[b].1 / c
-            ));
-        }
-        md.push('\n');
     }
-    // Opacity-weighted: where the opacity is.
-    let total_op: f64 = opacity.iter().map(|o| *o as f64).sum();
-    md.push_str("\nOpacity mass per bin (sum of opacities, share): ");
-    let parts: Vec<String> = (0..nb)
-        .filter(|b| counts[*b] > 0)
-        .map(|b| {
-            let m: f64 = op_bins[b].iter().map(|o| *o as f64).sum();
-            format!("{} {:.1} %", bin_label(b), 100.0 * m / total_op.max(1e-12))
-        })
-        .collect();
-    md.push_str(&parts.join(", "));
-    md.push('\n');
     md.push_str(&light_shares(&trainer)?);
     if args.concavity.concavity_gap > 0.0 {
         md.push_str(&crate::concavity::report(
@@ -310,6 +411,90 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     println!("{md}");
     println!("written to {}", out.display());
     Ok(())
+}
+
+/// One group's table: per signed-distance bin, the count, the opacity percentiles and each
+/// term's mean descent, then the group's opacity mass per bin.
+fn group_table(
+    group: &Group,
+    bins: &[usize],
+    opacity: &[f32],
+    view_dependence: &[f32],
+    term_names: &[&'static str],
+    sums: &[Vec<(f64, f64)>],
+) -> String {
+    let nb = EDGES.len() + 1;
+    let mut counts = vec![0usize; nb];
+    let mut op_bins: Vec<Vec<f32>> = vec![Vec::new(); nb];
+    let mut vd_bins = vec![0.0f64; nb];
+    let mut term_bins = vec![vec![(0.0f64, 0.0f64); nb]; term_names.len()];
+    for &i in &group.members {
+        counts[bins[i]] += 1;
+        op_bins[bins[i]].push(opacity[i]);
+        vd_bins[bins[i]] += f64::from(view_dependence[i]);
+        for (t, s) in sums.iter().enumerate() {
+            term_bins[t][bins[i]].0 += s[i].0;
+            term_bins[t][bins[i]].1 += s[i].1;
+        }
+    }
+    for o in op_bins.iter_mut() {
+        o.sort_by(f32::total_cmp);
+    }
+    let total = group.members.len();
+    let mut md = format!("\n## {} ({total})\n\n", group.label);
+    if total == 0 {
+        return md;
+    }
+    md.push_str(
+        "| signed distance (fp) | Gaussians | share | opacity p10 / p50 / p90 | view-dependent SH |",
+    );
+    for t in term_names {
+        md.push_str(&format!(" {t} logit / normal |"));
+    }
+    md.push('\n');
+    md.push_str("|---|---:|---:|---|---:|");
+    for _ in term_names {
+        md.push_str("---|");
+    }
+    md.push('\n');
+    for b in 0..nb {
+        if counts[b] == 0 {
+            continue;
+        }
+        let o = &op_bins[b];
+        md.push_str(&format!(
+            "| {} | {} | {:.1} % | {:.3} / {:.3} / {:.3} | {:.3} |",
+            bin_label(b),
+            counts[b],
+            100.0 * counts[b] as f64 / total as f64,
+            percentile(o, 0.1),
+            percentile(o, 0.5),
+            percentile(o, 0.9),
+            vd_bins[b] / counts[b] as f64
+        ));
+        for t in &term_bins {
+            let c = counts[b] as f64;
+            md.push_str(&format!(
+                " {:+.2} / {:+.2} |",
+                1e6 * t[b].0 / c,
+                1e6 * t[b].1 / c
+            ));
+        }
+        md.push('\n');
+    }
+    // Opacity-weighted: where the opacity is.
+    let total_op: f64 = group.members.iter().map(|i| f64::from(opacity[*i])).sum();
+    md.push_str("\nOpacity mass per bin (sum of opacities, share): ");
+    let parts: Vec<String> = (0..nb)
+        .filter(|b| counts[*b] > 0)
+        .map(|b| {
+            let m: f64 = op_bins[b].iter().map(|o| *o as f64).sum();
+            format!("{} {:.1} %", bin_label(b), 100.0 * m / total_op.max(1e-12))
+        })
+        .collect();
+    md.push_str(&parts.join(", "));
+    md.push('\n');
+    md
 }
 
 /// A channel at least this high (of 1) counts as at the top of its range.
@@ -439,10 +624,11 @@ mod tests {
         assert_eq!(bin_of(-0.3), 4);
         assert_eq!(bin_of(0.0), 5);
         assert_eq!(bin_of(0.25), 6);
-        assert_eq!(bin_of(5.0), EDGES.len());
+        assert_eq!(bin_of(50.0), EDGES.len());
+        assert_eq!(bin_of(5.0), 10);
         assert_eq!(bin_label(0), "< -4");
         assert_eq!(bin_label(5), "[-0.25, 0.25)");
-        assert_eq!(bin_label(EDGES.len()), ">= 2");
+        assert_eq!(bin_label(EDGES.len()), ">= 16");
         let sorted = [0.1, 0.2, 0.3, 0.4, 0.5];
         assert_eq!(percentile(&sorted, 0.5), 0.3);
         assert!(percentile(&[], 0.5).is_nan());
