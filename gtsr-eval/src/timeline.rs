@@ -56,6 +56,10 @@ pub struct TimelinePoint {
     /// [`TimelinePoint::rest_completeness`] of the masks alone (the same at every point).
     #[serde(default)]
     pub masks_alone_rest_completeness: Option<f64>,
+    /// Chamfer distance between this point's extracted mesh and the previous point's (scene
+    /// units): how much the mesh still changes as the model trains. Missing at the first mesh.
+    #[serde(default)]
+    pub mesh_change: Option<f64>,
     /// Number of Gaussians.
     pub gaussians: u64,
     /// Free-form label (for example the method or the evaluation split); [`FINAL_LABEL`]
@@ -80,10 +84,10 @@ pub struct Timeline {
 pub const CSV_HEADER: &str = "iteration,train_seconds,psnr,ssim,chamfer,depth_only_chamfer,\
                               masks_alone_chamfer,depth_error,blind_completeness,\
                               rest_completeness,masks_alone_blind_completeness,\
-                              masks_alone_rest_completeness,gaussians,label";
+                              masks_alone_rest_completeness,mesh_change,gaussians,label";
 
 /// The columns older logs lack (each read as missing).
-pub const OPTIONAL_COLUMNS: [&str; 7] = [
+pub const OPTIONAL_COLUMNS: [&str; 8] = [
     "depth_only_chamfer",
     "masks_alone_chamfer",
     "depth_error",
@@ -91,6 +95,7 @@ pub const OPTIONAL_COLUMNS: [&str; 7] = [
     "rest_completeness",
     "masks_alone_blind_completeness",
     "masks_alone_rest_completeness",
+    "mesh_change",
 ];
 
 fn csv_field(s: &str) -> String {
@@ -159,7 +164,7 @@ impl Timeline {
         let opt = |v: Option<f64>| v.map(|c| c.to_string()).unwrap_or_default();
         for p in &self.points {
             s.push_str(&format!(
-                "{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                 p.iteration,
                 p.train_seconds,
                 p.psnr,
@@ -172,6 +177,7 @@ impl Timeline {
                 opt(p.rest_completeness),
                 opt(p.masks_alone_blind_completeness),
                 opt(p.masks_alone_rest_completeness),
+                opt(p.mesh_change),
                 p.gaussians,
                 csv_field(&p.label)
             ));
@@ -252,6 +258,7 @@ impl Timeline {
                 rest_completeness: optional("rest_completeness")?,
                 masks_alone_blind_completeness: optional("masks_alone_blind_completeness")?,
                 masks_alone_rest_completeness: optional("masks_alone_rest_completeness")?,
+                mesh_change: optional("mesh_change")?,
                 gaussians: int("gaussians")?,
                 label: column("label").map(|i| f[i].clone()).unwrap_or_default(),
             });

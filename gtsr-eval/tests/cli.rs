@@ -110,6 +110,7 @@ fn plot_subcommand_writes_a_png() {
             rest_completeness: None,
             masks_alone_blind_completeness: None,
             masks_alone_rest_completeness: None,
+            mesh_change: None,
             gaussians: 1000,
             label: "run".into(),
         });

@@ -23,6 +23,7 @@ fn timeline_with(label: &str, scale: f64, with_chamfer: bool, with_depth: bool) 
             rest_completeness: None,
             masks_alone_blind_completeness: None,
             masks_alone_rest_completeness: None,
+            mesh_change: None,
             gaussians: 10_000 + 5_000 * k,
             label: label.to_string(),
         });
@@ -354,6 +355,7 @@ fn the_completeness_split_is_kept_and_drawn_in_its_own_panel() {
         p.rest_completeness = Some(0.0004 / (1.0 + k as f64));
         p.masks_alone_blind_completeness = Some(0.146);
         p.masks_alone_rest_completeness = Some(0.00054);
+        p.mesh_change = (k > 0).then(|| 0.001 / k as f64);
     }
     let path = dir.path().join("timeline.csv");
     t.write_csv(&path).unwrap();
@@ -372,6 +374,7 @@ fn the_completeness_split_is_kept_and_drawn_in_its_own_panel() {
     );
     assert!(old.points[0].blind_completeness.is_none());
     assert!(old.points[0].masks_alone_rest_completeness.is_none());
+    assert!(old.points[0].mesh_change.is_none());
 
     let (with, without) = (dir.path().join("with.png"), dir.path().join("without.png"));
     let (a, b) = (

@@ -93,6 +93,7 @@ impl Evaluation {
             rest_completeness: mesh.map(|b| b.rest),
             masks_alone_blind_completeness: masks.map(|b| b.blind),
             masks_alone_rest_completeness: masks.map(|b| b.rest),
+            mesh_change: None,
             gaussians: (ns + ni) as u64,
             label: label.into(),
         }

@@ -27,6 +27,7 @@ mod prepare;
 mod profile;
 mod run;
 mod settings;
+mod settle;
 
 pub use args::{Args, Backend, DEFAULT_EVAL_SHADING_ROUNDS};
 pub use run::{Outcome, RunEvent, run, run_with};

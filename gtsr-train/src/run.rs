@@ -26,6 +26,7 @@ use crate::profile::write_profile;
 use crate::settings::{
     FileConfig, ResolvedConfig, RunState, differing_fields, read_config, resolve_config,
 };
+use crate::settle::Settle;
 
 /// How the run ended.
 pub enum Outcome {
@@ -391,6 +392,13 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
     );
     bar.set_position(trainer.steps_done() as u64);
     let log_every = (iterations / 20).max(1);
+    let centre = mesh_settings
+        .bounds
+        .map_or(glam::Vec3::ZERO, |(lo, hi)| (lo + hi) * 0.5);
+    let mut settle = Settle::new(f64::from(gtsr_mesh::pixels::median_pixel_footprint(
+        scene.train.iter().map(|v| &v.camera),
+        centre,
+    )));
     // Per stage: summed step times and the number of steps.
     let mut profile = [
         (StepTimes::default(), 0usize),
@@ -455,7 +463,15 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
                 &mesh_settings,
                 true,
             )?;
-            timeline.push(e.timeline_point(&trainer, train_seconds, "test"));
+            let mut point = e.timeline_point(&trainer, train_seconds, "test");
+            if let Some(mesh) = &e.extracted {
+                let change = settle.compare(trainer.steps_done(), mesh)?;
+                point.mesh_change = change.map(|c| c.distance);
+                if let Some(note) = change.and_then(|c| settle.note(&c)) {
+                    say(&bar, note);
+                }
+            }
+            timeline.push(point);
             timeline.write_csv(&timeline_path)?;
             observe(RunEvent::Evaluation {
                 step: trainer.steps_done(),
@@ -495,6 +511,14 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
         }
     }
     bar.finish_and_clear();
+    if let Some(since) = settle.settled_since() {
+        println!(
+            "the in-run meshes settled after step {since} (each moved less than {} footprints, \
+             {} % of it within half of one)",
+            crate::settle::SETTLED_FOOTPRINTS,
+            100.0 * crate::settle::SETTLED_SHARE
+        );
+    }
     if args.profile {
         write_profile(&profile, &trainer, &args.out)?;
     }

@@ -392,6 +392,7 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
             &sums,
         ));
     }
+    md.push_str(&interior_outside(&trainer, &sdf, footprint)?);
     md.push_str(&light_shares(&trainer)?);
     if args.concavity.concavity_gap > 0.0 {
         md.push_str(&crate::concavity::report(
@@ -495,6 +496,37 @@ fn group_table(
     md.push_str(&parts.join(", "));
     md.push('\n');
     md
+}
+
+/// Where the interior set lies against the ground truth: the share of its Gaussians, and of
+/// their opacity, more than a footprint outside the truth (in a concavity the surface set
+/// lids over, where the scattering set can paint what the views see). Empty without one.
+fn interior_outside(
+    trainer: &gtsr_model::trainer::Trainer,
+    sdf: &SignedDistance<'_>,
+    footprint: f32,
+) -> Result<String> {
+    let Some(set) = &trainer.model().interior else {
+        return Ok(String::new());
+    };
+    let host = set.to_host();
+    let (means, _) = host.column(ParamKind::Means).context("interior means")?;
+    let opacity = host_vec(trainer.model().opacities(set));
+    let (mut count, mut mass, mut total) = (0usize, 0.0f64, 0.0f64);
+    for (p, o) in means.chunks_exact(3).zip(&opacity) {
+        total += f64::from(*o);
+        if sdf.query(Vec3::from_slice(p)).0 > footprint {
+            count += 1;
+            mass += f64::from(*o);
+        }
+    }
+    Ok(format!(
+        "\nInterior set: {count} of {} Gaussians ({:.1} %) lie more than a footprint outside the \
+         ground truth, with {:.1} % of its opacity.\n",
+        opacity.len(),
+        100.0 * count as f64 / opacity.len().max(1) as f64,
+        100.0 * mass / total.max(1e-12)
+    ))
 }
 
 /// A channel at least this high (of 1) counts as at the top of its range.
