@@ -251,61 +251,23 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     }
     let footprint = median_pixel_footprint(scene.train.iter().map(|v| &v.camera), Vec3::ZERO);
 
-    let (groups, probe_count) = match args.hull_blind {
-        Some(gap) => {
-            let (_, masks) = gtsr_eval::native_masks_mesh(&args.data)?;
-            let hull = SignedDistance::new(&masks, "masks' mesh")?;
-            let probes = if args.probes > 0 {
-                add_probes(&mut trainer, &gt, &hull, gap, footprint, args.probes)?
-            } else {
-                Vec::new()
-            };
-            let host = trainer.model().surface.to_host();
-            let (means, _) = host.column(ParamKind::Means).context("means")?;
-            let trained = host.n - probes.len();
-            let (mut blind, mut seen) = (Vec::new(), Vec::new());
-            for (i, p) in means.chunks_exact(3).take(trained).enumerate() {
-                let p = Vec3::from_slice(p);
-                let (d, normal) = sdf.query(p);
-                if hull.query(p - d * normal).0.abs() > gap {
-                    blind.push(i);
-                } else {
-                    seen.push(i);
-                }
-            }
-            let count = probes.len();
-            let mut g = vec![
-                Group {
-                    label: "nearest truth the masks place",
-                    members: seen,
-                },
-                Group {
-                    label: "nearest truth hull-blind",
-                    members: blind,
-                },
-            ];
-            if count > 0 {
-                g.push(Group {
-                    label: "probes on the hull-blind truth",
-                    members: probes,
-                });
-            }
-            (g, count)
-        }
-        None => {
-            if args.probes > 0 {
-                bail!("--probes needs --hull-blind");
-            }
-            let n = trainer.model().surface.len();
-            (
-                vec![Group {
-                    label: "all surface Gaussians",
-                    members: (0..n).collect(),
-                }],
-                0,
-            )
-        }
+    if args.probes > 0 && args.hull_blind.is_none() {
+        bail!("--probes needs --hull-blind");
+    }
+    let masks = match args.hull_blind {
+        Some(_) => Some(gtsr_eval::native_masks_mesh(&args.data)?.1),
+        None => None,
     };
+    let hull = (masks.as_ref())
+        .map(|m| SignedDistance::new(m, "masks' mesh"))
+        .transpose()?;
+    let probes = match (&hull, args.hull_blind) {
+        (Some(h), Some(gap)) if args.probes > 0 => {
+            add_probes(&mut trainer, &gt, h, gap, footprint, args.probes)?
+        }
+        _ => Vec::new(),
+    };
+    let probe_count = probes.len();
     let surface = trainer.model().surface.to_host();
     let (means, _) = surface.column(ParamKind::Means).context("means")?;
     let means: Vec<Vec3> = means.chunks_exact(3).map(Vec3::from_slice).collect();
@@ -322,6 +284,36 @@ pub fn run(args: &DiagnoseSurfaceArgs) -> Result<()> {
     };
     let located: Vec<(f32, Vec3)> = means.iter().map(|p| sdf.query(*p)).collect();
     let bins: Vec<usize> = located.iter().map(|(d, _)| bin_of(d / footprint)).collect();
+    let groups = match (&hull, args.hull_blind) {
+        (Some(hull), Some(gap)) => {
+            // Each trained Gaussian by its nearest truth (the point `d` along the normal).
+            let (blind, seen): (Vec<usize>, Vec<usize>) = (0..n - probe_count).partition(|&i| {
+                let (d, normal) = located[i];
+                hull.query(means[i] - d * normal).0.abs() > gap
+            });
+            let mut g = vec![
+                Group {
+                    label: "nearest truth the masks place",
+                    members: seen,
+                },
+                Group {
+                    label: "nearest truth hull-blind",
+                    members: blind,
+                },
+            ];
+            if probe_count > 0 {
+                g.push(Group {
+                    label: "probes on the hull-blind truth",
+                    members: probes,
+                });
+            }
+            g
+        }
+        _ => vec![Group {
+            label: "all surface Gaussians",
+            members: (0..n).collect(),
+        }],
+    };
 
     // Per term: per Gaussian, summed descent on the logit and along the normal.
     let mut term_names: Vec<&'static str> = Vec::new();
