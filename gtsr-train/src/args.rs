@@ -46,8 +46,10 @@ pub struct Args {
     /// the scene shows it does not need; the run's first lines say what).
     #[arg(long, value_enum, default_value_t = Preset::Auto)]
     pub preset: Preset,
-    /// A run's `config.json` (or a bare training configuration): every setting from it, its
-    /// dataset included; the flags given beside it override.
+    /// A run's `config.json`, a bare training configuration (its `train` part), or any part of
+    /// either (`{"train": {"weights": {"mask": 2}}}`): the settings it gives, its dataset
+    /// included, over the scene's defaults; the flags given beside it override. A field that is
+    /// not a setting is an error that names it (exit status 2).
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Continue from `--out/checkpoint.safetensors`, with the settings and the dataset of

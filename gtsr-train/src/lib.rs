@@ -31,3 +31,4 @@ mod settle;
 
 pub use args::{Args, Backend, DEFAULT_EVAL_SHADING_ROUNDS};
 pub use run::{Outcome, RunEvent, run, run_with};
+pub use settings::ConfigError;

@@ -4,7 +4,7 @@
 //! path-traced by `gtsr-data`) and reconstructs it on the CPU. See `--help` for the options and
 //! the README for what lands in `--out`.
 
-use gtsr_train::{Args, Outcome, run};
+use gtsr_train::{Args, ConfigError, Outcome, run};
 
 fn main() {
     // Each training step renders many views; keep their freed buffers in the process instead
@@ -16,7 +16,9 @@ fn main() {
         Ok(Outcome::Interrupted) => std::process::exit(130),
         Err(e) => {
             eprintln!("gtsr-train: error: {e:#}");
-            std::process::exit(1);
+            // Settings that cannot be used exit as a bad flag does.
+            let usage = e.chain().any(|c| c.is::<ConfigError>());
+            std::process::exit(if usage { 2 } else { 1 });
         }
     }
 }

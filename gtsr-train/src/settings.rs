@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use gtsr_data::Scene;
 use gtsr_mesh::MeshConfig;
-use gtsr_model::config::{Decision, Preset, TrainConfig, auto_components};
+use gtsr_model::config::{Components, Decision, Preset, TrainConfig, auto_components};
 use gtsr_model::views::scene_evidence;
 use serde::{Deserialize, Serialize};
 
@@ -31,45 +31,137 @@ pub(crate) struct RunState {
     pub(crate) train_seconds: f64,
 }
 
-/// What `--config` gives: a run's `config.json`, or a bare training configuration (then the
-/// mesh settings are the defaults, and neither the dataset, the resolution nor the preset is
-/// given).
+/// A configuration that cannot be used: a field that is not a setting, a value of the wrong
+/// type or out of range. `gtsr-train` exits with status 2 on it, as on a bad flag.
+#[derive(Debug)]
+pub struct ConfigError(pub String);
+
+impl std::fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+/// The top-level fields of a run's `config.json`.
+const RUN_FIELDS: [&str; 6] = ["data", "resolution", "preset", "decisions", "train", "mesh"];
+
+/// What `--config` gives: a run's `config.json` or any part of it, or a bare training
+/// configuration (the `train` part alone) or any part of that. What a file leaves out comes
+/// from the scene's defaults, as without `--config`.
 pub(crate) struct FileConfig {
+    /// The file, for messages.
+    pub(crate) path: PathBuf,
     pub(crate) data: Option<PathBuf>,
-    pub(crate) train: TrainConfig,
-    pub(crate) mesh: MeshConfig,
     pub(crate) resolution: Option<u32>,
     pub(crate) preset: Option<Preset>,
-    pub(crate) decisions: Vec<Decision>,
+    pub(crate) decisions: Option<Vec<Decision>>,
+    /// The `train` fields given.
+    pub(crate) train: Option<serde_json::Value>,
+    /// The `mesh` fields given.
+    pub(crate) mesh: Option<serde_json::Value>,
 }
 
 pub(crate) fn read_config(path: &Path) -> Result<FileConfig> {
+    use serde_json::Value;
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    match serde_json::from_str::<ResolvedConfig>(&text) {
-        Ok(r) => Ok(FileConfig {
-            data: Some(r.data),
-            train: r.train,
-            mesh: r.mesh,
-            resolution: Some(r.resolution),
-            preset: Some(r.preset),
-            decisions: r.decisions,
-        }),
-        Err(run_err) => match serde_json::from_str::<TrainConfig>(&text) {
-            Ok(train) => Ok(FileConfig {
-                data: None,
-                train,
-                mesh: MeshConfig::default(),
-                resolution: None,
-                preset: None,
-                decisions: Vec::new(),
-            }),
-            Err(_) => Err(anyhow::anyhow!(
-                "{}: not a gtsr-train configuration ({run_err})",
-                path.display()
-            )),
-        },
+    let bad = |what: String| ConfigError(format!("{}: {what}", path.display()));
+    let value: Value = serde_json::from_str(&text).map_err(|e| bad(format!("not JSON ({e})")))?;
+    let Value::Object(mut fields) = value else {
+        return Err(
+            bad("not a gtsr-train configuration (a JSON object is expected)".into()).into(),
+        );
+    };
+    if !fields.keys().any(|k| RUN_FIELDS.contains(&k.as_str())) {
+        // A bare training configuration.
+        fields = serde_json::Map::from_iter([("train".to_string(), Value::Object(fields))]);
     }
+    // Every field that is not a setting, named at once.
+    let mut unknown: Vec<String> = fields
+        .keys()
+        .filter(|k| !RUN_FIELDS.contains(&k.as_str()))
+        .cloned()
+        .collect();
+    if let Some(t) = fields.get("train") {
+        let mut all = serde_json::to_value(TrainConfig::for_iterations(Components::FULL, 3000))?;
+        unknown.extend(overlay_fields(&mut all, t, "train"));
+    }
+    if let Some(m) = fields.get("mesh") {
+        let mut all = serde_json::to_value(MeshConfig::default())?;
+        unknown.extend(overlay_fields(&mut all, m, "mesh"));
+    }
+    if !unknown.is_empty() {
+        return Err(bad(format!("unknown setting(s) {}", unknown.join(", "))).into());
+    }
+    fn take<T: serde::de::DeserializeOwned>(
+        fields: &mut serde_json::Map<String, Value>,
+        name: &str,
+        bad: &dyn Fn(String) -> ConfigError,
+    ) -> Result<Option<T>> {
+        match fields.remove(name) {
+            None => Ok(None),
+            Some(v) => Ok(Some(
+                serde_json::from_value(v).map_err(|e| bad(format!("{name}: {e}")))?,
+            )),
+        }
+    }
+    Ok(FileConfig {
+        path: path.to_path_buf(),
+        data: take(&mut fields, "data", &bad)?,
+        resolution: take(&mut fields, "resolution", &bad)?,
+        preset: take(&mut fields, "preset", &bad)?,
+        decisions: take(&mut fields, "decisions", &bad)?,
+        train: fields.remove("train"),
+        mesh: fields.remove("mesh"),
+    })
+}
+
+/// Overlays `given` on `base` field by field (objects merge, anything else replaces) and
+/// returns the paths of the fields in `given` that `base` does not have, under `prefix`.
+pub(crate) fn overlay_fields(
+    base: &mut serde_json::Value,
+    given: &serde_json::Value,
+    prefix: &str,
+) -> Vec<String> {
+    use serde_json::Value;
+    let mut unknown = Vec::new();
+    match (base, given) {
+        (Value::Object(b), Value::Object(g)) => {
+            for (k, v) in g {
+                let path = format!("{prefix}.{k}");
+                match b.get_mut(k) {
+                    Some(slot) => unknown.extend(overlay_fields(slot, v, &path)),
+                    None => unknown.push(path),
+                }
+            }
+        }
+        (slot, v) => *slot = v.clone(),
+    }
+    unknown
+}
+
+/// `given` overlaid on `base`: a [`ConfigError`] naming every field that is not a setting, or
+/// whose value does not fit.
+fn overlaid<T: Serialize + serde::de::DeserializeOwned>(
+    base: &T,
+    given: &serde_json::Value,
+    part: &str,
+    file: &Path,
+) -> Result<T> {
+    let mut json = serde_json::to_value(base)?;
+    let unknown = overlay_fields(&mut json, given, part);
+    if !unknown.is_empty() {
+        return Err(ConfigError(format!(
+            "{}: unknown setting(s) {}",
+            file.display(),
+            unknown.join(", ")
+        ))
+        .into());
+    }
+    serde_json::from_value(json)
+        .map_err(|e| ConfigError(format!("{}: {part}: {e}", file.display())).into())
 }
 
 /// Overlays on `base` the settings that `args` gave on the command line: each given id is a
@@ -92,39 +184,116 @@ pub(crate) fn overlay_given(base: &mut serde_json::Value, args: &Args) -> Result
     Ok(())
 }
 
-/// The run's settings: the scene's defaults (or `--config`), the schedule laid out again when
-/// `--iterations` changes the length, then the flags given on the command line.
+/// The scene's default components: the preset's, or what `auto` decides from the scene.
+fn default_components(preset: Preset, scene: &Scene) -> Result<(Components, Vec<Decision>)> {
+    Ok(match preset.components() {
+        Some(c) => (c, Vec::new()),
+        None => auto_components(&scene_evidence(scene, 30.0)?),
+    })
+}
+
+/// The training settings without a file: the scene's defaults for `components` and
+/// `iterations`.
+fn scene_defaults(scene: &Scene, components: Components, iterations: usize) -> TrainConfig {
+    let view = &scene.train[0];
+    let pixels = view.width() as usize * view.height() as usize;
+    let masked = scene.train.iter().all(|v| v.mask.is_some());
+    TrainConfig::for_views(components, iterations, pixels, masked)
+}
+
+/// The training settings of a file that gives some of them: the scene's defaults (for the
+/// components and the length the file gives, else the preset's and the run's) overlaid with
+/// them. Every component the file sets is a decision.
+fn partial_train(
+    args: &Args,
+    scene: &Scene,
+    f: &FileConfig,
+    given: &serde_json::Value,
+    iterations: usize,
+) -> Result<(TrainConfig, Vec<Decision>)> {
+    let preset = f.preset.unwrap_or(args.preset);
+    let (components, mut decisions) = default_components(preset, scene)?;
+    let components: Components = match given.get("components") {
+        Some(c) => overlaid(&components, c, "train.components", &f.path)?,
+        None => components,
+    };
+    let length = match (args.iterations, given.get("iterations")) {
+        (None, Some(n)) => serde_json::from_value::<usize>(n.clone())
+            .map_err(|e| ConfigError(format!("{}: train.iterations: {e}", f.path.display())))?,
+        _ => iterations,
+    };
+    let mut given = given.clone();
+    if args.iterations.is_some()
+        && let Some(fields) = given.as_object_mut()
+    {
+        // The command line's length lays the schedule out again.
+        fields.remove("iterations");
+    }
+    let train = overlaid(
+        &scene_defaults(scene, components, length),
+        &given,
+        "train",
+        &f.path,
+    )?;
+    if let Some(serde_json::Value::Object(set)) = given.get("components") {
+        for name in set.keys().filter(|k| k.as_str() != "sh_degree") {
+            let on = serde_json::to_value(train.components)?[name] == true;
+            decisions.retain(|d| &d.component != name);
+            decisions.push(Decision {
+                component: name.clone(),
+                enabled: on,
+                reason: format!("{name}: {on} in {}", f.path.display()),
+            });
+        }
+    }
+    Ok((train, decisions))
+}
+
+/// The run's settings: the scene's defaults, overlaid with `--config` (a complete file is
+/// taken as it is, its schedule laid out again when `--iterations` changes the length), then
+/// with the flags given on the command line.
 pub(crate) fn resolve_config(
     args: &Args,
     scene: &Scene,
     file: Option<FileConfig>,
     iterations: usize,
 ) -> Result<(TrainConfig, MeshConfig, Vec<Decision>)> {
-    let mut decisions = Vec::new();
-    let (mut train, mesh) = match file {
+    let (mut train, mesh, mut decisions) = match file {
         Some(f) => {
-            let mut t = f.train;
-            if args.iterations.is_some() && t.iterations != iterations {
-                t.set_schedule(iterations);
-            }
-            decisions = f.decisions;
-            (t, f.mesh)
-        }
-        None => {
-            let components = match args.preset.components() {
-                Some(c) => c,
-                None => {
-                    let (c, d) = auto_components(&scene_evidence(scene, 30.0)?);
-                    decisions = d;
-                    c
+            let complete = f
+                .train
+                .as_ref()
+                .and_then(|v| serde_json::from_value::<TrainConfig>(v.clone()).ok());
+            let (train, decisions) = match (complete, &f.train) {
+                (Some(mut t), _) => {
+                    if args.iterations.is_some() && t.iterations != iterations {
+                        t.set_schedule(iterations);
+                    }
+                    (t, f.decisions.clone().unwrap_or_default())
+                }
+                (None, given) => {
+                    let empty = serde_json::json!({});
+                    partial_train(
+                        args,
+                        scene,
+                        &f,
+                        given.as_ref().unwrap_or(&empty),
+                        iterations,
+                    )?
                 }
             };
-            let view = &scene.train[0];
-            let pixels = view.width() as usize * view.height() as usize;
-            let masked = scene.train.iter().all(|v| v.mask.is_some());
+            let mesh = match &f.mesh {
+                Some(m) => overlaid(&MeshConfig::default(), m, "mesh", &f.path)?,
+                None => MeshConfig::default(),
+            };
+            (train, mesh, decisions)
+        }
+        None => {
+            let (components, decisions) = default_components(args.preset, scene)?;
             (
-                TrainConfig::for_views(components, iterations, pixels, masked),
+                scene_defaults(scene, components, iterations),
                 MeshConfig::default(),
+                decisions,
             )
         }
     };
@@ -155,9 +324,9 @@ pub(crate) fn resolve_config(
     }
     train
         .validate()
-        .map_err(|e| anyhow::anyhow!("invalid configuration: {e}"))?;
+        .map_err(|e| ConfigError(format!("invalid configuration: {e}")))?;
     mesh.validate()
-        .map_err(|e| anyhow::anyhow!("invalid mesh settings: {e}"))?;
+        .map_err(|e| ConfigError(format!("invalid mesh settings: {e}")))?;
     Ok((train, mesh, decisions))
 }
 

@@ -17,7 +17,10 @@ The shapes have concavities that the masks cannot see:
 - `split_block`: two blocks with a narrow gap (0.05) between them.
 
 Each shape comes in two materials: `short` (wax_knot's colour, a quarter of its scattering radius) and
-`long` (amber_ingot's colour, twice wax_knot's radius).
+`long` (amber_ingot's colour, twice wax_knot's radius). A third, `mottled` (`long` with its
+colour darkened in patches by a noise fixed to the object, as amber with inclusions), is
+rendered only when `--scenes` names it: its patches move with the surface between views, the
+parallax a uniform material lacks.
 
 Usage (Debian's `blender` package, 3.4, renders headless):
 
@@ -45,10 +48,15 @@ FOV_X = 0.6911112070083618
 LIGHT_WATTS = 400.0
 
 MATERIALS = {
-    # name: (base colour, subsurface radius, roughness)
-    "short": ((0.9, 0.85, 0.75), (0.1, 0.075, 0.05), 0.45),
-    "long": ((0.95, 0.65, 0.2), (0.8, 0.6, 0.3), 0.2),
+    # name: (base colour, subsurface radius, roughness, mottled)
+    "short": ((0.9, 0.85, 0.75), (0.1, 0.075, 0.05), 0.45, False),
+    "long": ((0.95, 0.65, 0.2), (0.8, 0.6, 0.3), 0.2, False),
+    # `long` whose colour is mottled by a noise fixed to the object (amber with inclusions):
+    # texture that moves with the surface between views, i.e. parallax.
+    "mottled": ((0.95, 0.65, 0.2), (0.8, 0.6, 0.3), 0.2, True),
 }
+# The materials every run of the script renders unless `--scenes` names others.
+DEFAULT_MATERIALS = ("short", "long")
 
 
 # ---------------------------------------------------------------- shapes
@@ -288,13 +296,28 @@ def build_scene(verts, faces, material, samples, resolution):
     obj = bpy.data.objects.new("object", mesh)
     scene.collection.objects.link(obj)
 
-    base, radius, roughness = MATERIALS[material]
+    base, radius, roughness, mottled = MATERIALS[material]
     mat = bpy.data.materials.new(material)
     mat.use_nodes = True
     bsdf = mat.node_tree.nodes["Principled BSDF"]
     bsdf.subsurface_method = "RANDOM_WALK"
     bsdf.inputs["Base Color"].default_value = (*base, 1.0)
     bsdf.inputs["Subsurface Color"].default_value = (*base, 1.0)
+    if mottled:
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        coords = nodes.new("ShaderNodeTexCoord")
+        noise = nodes.new("ShaderNodeTexNoise")
+        noise.inputs["Scale"].default_value = 6.0
+        noise.inputs["Detail"].default_value = 2.0
+        links.new(coords.outputs["Object"], noise.inputs["Vector"])
+        ramp = nodes.new("ShaderNodeValToRGB")
+        ramp.color_ramp.elements[0].position = 0.45
+        ramp.color_ramp.elements[0].color = (*(0.25 * c for c in base), 1.0)
+        ramp.color_ramp.elements[1].position = 0.55
+        ramp.color_ramp.elements[1].color = (*base, 1.0)
+        links.new(noise.outputs["Fac"], ramp.inputs["Fac"])
+        links.new(ramp.outputs["Color"], bsdf.inputs["Base Color"])
+        links.new(ramp.outputs["Color"], bsdf.inputs["Subsurface Color"])
     bsdf.inputs["Subsurface"].default_value = 1.0
     bsdf.inputs["Subsurface Radius"].default_value = radius
     bsdf.inputs["Specular"].default_value = 0.5
@@ -341,7 +364,12 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", required=True, help="folder for the scenes (outside the repository)")
     names = [f"{s}_{m}" for s in SHAPES for m in MATERIALS]
-    parser.add_argument("--scenes", default=",".join(names), help="comma-separated; default: all")
+    default = [f"{s}_{m}" for s in SHAPES for m in DEFAULT_MATERIALS]
+    parser.add_argument(
+        "--scenes",
+        default=",".join(default),
+        help="comma-separated; default: every shape in the short and long materials",
+    )
     parser.add_argument("--samples", type=int, default=128)
     parser.add_argument("--resolution", type=int, default=256)
     parser.add_argument("--train", type=int, default=80)
