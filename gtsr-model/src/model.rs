@@ -670,6 +670,36 @@ impl Model {
         Ok(gtsr_render_kernels::render_crossing(inputs, &cfg, threshold)?.observed)
     }
 
+    /// The interior set's front for `camera`: per pixel `[H, W]`, the camera depth of the centre
+    /// of the interior splat at which the interior set's transmittance (its own blend, plain
+    /// opacities) first falls to `threshold`; 0 where it stays above. `None` without an
+    /// interior set. Not differentiable; runs the host kernels
+    /// ([`gtsr_render_kernels::render_crossing`]).
+    pub fn render_interior_front(
+        &self,
+        camera: &Camera,
+        threshold: f64,
+    ) -> Result<Option<Tensor<2>>, ModelError> {
+        let Some(set) = &self.interior else {
+            return Ok(None);
+        };
+        let means = set.req(ParamKind::Means).clone().detach();
+        let z = layout::cols(&to_camera(&means, camera), 2..3);
+        let log_scales = set.req(ParamKind::LogScales).clone().detach();
+        let inputs = SplatInputs {
+            features: z,
+            scales: self.plane_blurred(log_scales.clone().exp(), &log_scales, &means, camera),
+            means,
+            quats: set.req(ParamKind::Rotations).clone().detach(),
+            opacities: self.opacities(set).detach(),
+            xy_offsets: None,
+        };
+        let cfg = self.splat_config(camera, 1);
+        let out = gtsr_render_kernels::render_crossing(inputs, &cfg, threshold)?;
+        let [h, w, _] = out.features.dims();
+        Ok(Some(out.features.reshape([h, w]) * out.found))
+    }
+
     /// Like [`Model::render_depth`], but each pixel takes the normal, plane and depth of the one
     /// surface splat at which the pixel's transmittance first falls to `threshold` (0.5: the
     /// median splat, as 2DGS's median depth) instead of their blend over every layer the ray

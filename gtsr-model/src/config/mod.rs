@@ -169,6 +169,13 @@ pub struct LossWeights {
     #[serde(default)]
     #[arg(skip)]
     pub front_depth: f64,
+    /// Stage 2: the weight of the interior-front term ([`crate::losses::interior_front`]: the
+    /// surface set's blended depth pulled to the interior set's front where that lies more
+    /// than [`crate::losses::INTERIOR_FRONT_BAND`] footprints behind it; not in the paper, 0:
+    /// off). One more host render of the interior set per step.
+    #[serde(default)]
+    #[arg(skip)]
+    pub interior_front: f64,
     /// Opacity sparsity of the surface set, both stages (not in the paper; 3DGS-MCMC's
     /// regulariser): this weight times the mean surface opacity
     /// ([`crate::losses::opacity_l1`]). It fades the surface Gaussians that no other term
@@ -235,6 +242,7 @@ impl Default for LossWeights {
             mask_band_hinge: false,
             photometric_band: 0,
             front_depth: 0.0,
+            interior_front: 0.0,
             opacity_l1: 0.0,
             smooth_scatter: 0.0,
             hull_depth: 0.0,

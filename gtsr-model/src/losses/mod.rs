@@ -10,7 +10,8 @@ pub use geometric::{
 };
 pub use photometric::{l1, photometric, photometric_masked, ssim, ssim_map};
 pub use regular::{
-    FRONT_TRANSMITTANCE, HULL_DEPTH_BAND, edge_aware_smoothness, flatten, front_depth, hull_depth,
-    layer_spread, mask_deficit, mask_l1, mask_l1_band_hinge, mask_l1_outside_band, opacity_entropy,
-    opacity_l1, outside_band,
+    FRONT_TRANSMITTANCE, HULL_DEPTH_BAND, INTERIOR_FRONT_BAND, INTERIOR_FRONT_TRANSMITTANCE,
+    edge_aware_smoothness, flatten, front_depth, hull_depth, interior_front, layer_spread,
+    mask_deficit, mask_l1, mask_l1_band_hinge, mask_l1_outside_band, opacity_entropy, opacity_l1,
+    outside_band,
 };

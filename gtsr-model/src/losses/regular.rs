@@ -204,6 +204,38 @@ pub fn hull_depth(
     footprint_gap(depth, &hull, focal, &valid.clone().bool_and(near))
 }
 
+/// How far, in pixel footprints, the interior set's front may lie behind the surface set's
+/// blended depth before [`interior_front`] counts a pixel.
+pub const INTERIOR_FRONT_BAND: f64 = 3.0;
+
+/// The interior set's transmittance at which [`interior_front`] reads its front
+/// ([`crate::model::Model::render_interior_front`]).
+pub const INTERIOR_FRONT_TRANSMITTANCE: f64 = 0.5;
+
+/// Interior front (not in the paper): the mean, over the `valid` pixels where the interior
+/// set's front `F` (detached; the depth of the interior splat at which the interior set's
+/// transmittance first falls to [`INTERIOR_FRONT_TRANSMITTANCE`]) lies more than
+/// [`INTERIOR_FRONT_BAND`] footprints behind the surface set's blended depth `D`, of
+/// `|D - F|` in footprints (`F / f`). The surface is the boundary of the scattering medium:
+/// the interior containment keeps the medium behind the surface, and this keeps the surface
+/// from floating in front of the medium over an empty gap, such as a lid over a cup whose
+/// inside the interior set paints from where the views place it. Which pixels count is
+/// decided on the detached depth.
+pub fn interior_front(
+    depth: &Tensor<2>,
+    front: &Tensor<2>,
+    focal: f64,
+    valid: &Tensor<2, Bool>,
+) -> Tensor<1> {
+    let front = front.clone().detach();
+    let scale = front.clone().clamp_min(1e-6).recip() * focal;
+    // A NaN gap compares false: such a pixel does not count.
+    let behind = ((front.clone() - depth.clone().detach()) * scale)
+        .greater_elem(INTERIOR_FRONT_BAND)
+        .bool_and(front.clone().greater_elem(0.0));
+    footprint_gap(depth, &front, focal, &valid.clone().bool_and(behind))
+}
+
 /// Softening of [`layer_spread`]'s square root, in pixels: keeps its gradient bounded where
 /// the spread is 0.
 pub const LAYER_SPREAD_EPS_PX: f64 = 0.05;

@@ -648,6 +648,20 @@ impl Trainer {
                         * w.front_depth,
                 );
             }
+            if stage2 && w.interior_front > 0.0 {
+                let front = self
+                    .model
+                    .detached()
+                    .render_interior_front(&view.camera, losses::INTERIOR_FRONT_TRANSMITTANCE)?;
+                if let Some(front) = front {
+                    passes += 1;
+                    add(
+                        "interior_front",
+                        losses::interior_front(&g.depth, &front, view.camera.fx, &valid)
+                            * w.interior_front,
+                    );
+                }
+            }
             let hull_on =
                 w.hull_depth > 0.0 && step as f64 >= w.hull_depth_from * cfg.iterations as f64;
             if let (Some(hull), true) = (&view.hull_depth, hull_on) {

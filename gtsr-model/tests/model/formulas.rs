@@ -1219,6 +1219,52 @@ fn the_hull_depth_term_pulls_the_blend_onto_a_near_bound_and_ignores_a_far_one()
 }
 
 #[test]
+fn the_interior_front_term_pulls_a_surface_floating_over_the_medium_down_to_it() {
+    let (device, model, cam, g, valid) = blended_stack();
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    // Without an interior set there is no front.
+    assert!(model.render_interior_front(&cam, 0.5).unwrap().is_none());
+    // The stack itself as the medium: its front is one of its layers, in front of the blend
+    // or within the band of it, so nothing counts.
+    let mut medium = model.clone();
+    medium.interior = Some(model.surface.clone());
+    let front = medium
+        .render_interior_front(&cam, losses::INTERIOR_FRONT_TRANSMITTANCE)
+        .unwrap()
+        .unwrap();
+    let at = host_vec(front.clone())[12 * w + 4];
+    assert!((3.79..=4.01).contains(&at), "{at}");
+    let none = losses::interior_front(&g.depth, &front, cam.fx, &valid);
+    assert_eq!(none.into_scalar::<f64>(), 0.0);
+    // A medium far behind on the left half (at 5), within the band on the right half (one
+    // footprint behind the blend), none on the top row.
+    let blend = host_vec(g.depth.clone())[12 * w + 4];
+    let footprint = blend / cam.fx as f32;
+    let far: Vec<f32> = (0..w * h)
+        .map(|p| match (p % w, p / w) {
+            (_, 0) => 0.0,
+            (x, _) if x < w / 2 => 5.0,
+            _ => blend + footprint,
+        })
+        .collect();
+    let far = Tensor::<2>::from_data(TensorData::new(far, [h, w]), &device);
+    let loss = losses::interior_front(&g.depth, &far, cam.fx, &valid);
+    let want = f64::from(5.0 - blend) * cam.fx / 5.0;
+    let got = loss.clone().into_scalar::<f64>();
+    assert!(
+        want > losses::INTERIOR_FRONT_BAND && (got - want).abs() < 1e-2 * want,
+        "{got} against {want} (blend {blend})"
+    );
+    // Descent moves the layers away from the camera (+z), towards the medium.
+    let grads = loss.backward();
+    let g_means = surface_grad(&model, ParamKind::Means, &grads);
+    assert!((0..3).all(|i| g_means[3 * i + 2] < 0.0), "{g_means:?}");
+    // A NaN front does not count.
+    let nan = losses::interior_front(&g.depth, &far.mul_scalar(f32::NAN), cam.fx, &valid);
+    assert_eq!(nan.into_scalar::<f64>(), 0.0);
+}
+
+#[test]
 fn the_hull_depth_term_pulls_a_surface_that_spills_past_an_occluding_edge_back() {
     let (device, model, cam, g, valid) = blended_stack();
     let (w, h) = (cam.width as usize, cam.height as usize);
