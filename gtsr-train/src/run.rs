@@ -467,7 +467,7 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
             if let Some(mesh) = &e.extracted {
                 let change = settle.compare(trainer.steps_done(), mesh)?;
                 point.mesh_change = change.map(|c| c.distance);
-                if let Some(note) = change.and_then(|c| settle.note(&c)) {
+                if let Some(note) = change.map(|c| settle.note(&c)) {
                     say(&bar, note);
                 }
             }

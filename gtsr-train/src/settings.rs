@@ -142,8 +142,8 @@ pub(crate) fn overlay_fields(
     unknown
 }
 
-/// `given` overlaid on `base`: a [`ConfigError`] naming every field that is not a setting, or
-/// whose value does not fit.
+/// `given` overlaid on `base` (whose fields [`read_config`] has already checked it against):
+/// a [`ConfigError`] where a value does not fit.
 fn overlaid<T: Serialize + serde::de::DeserializeOwned>(
     base: &T,
     given: &serde_json::Value,
@@ -151,17 +151,30 @@ fn overlaid<T: Serialize + serde::de::DeserializeOwned>(
     file: &Path,
 ) -> Result<T> {
     let mut json = serde_json::to_value(base)?;
-    let unknown = overlay_fields(&mut json, given, part);
-    if !unknown.is_empty() {
-        return Err(ConfigError(format!(
-            "{}: unknown setting(s) {}",
-            file.display(),
-            unknown.join(", ")
-        ))
-        .into());
-    }
+    overlay_fields(&mut json, given, part);
     serde_json::from_value(json)
         .map_err(|e| ConfigError(format!("{}: {part}: {e}", file.display())).into())
+}
+
+/// Records component `name` of `components` (a field of [`Components`]) as decided for
+/// `why`, replacing what was decided before; `sh_degree` is a setting, not a decision.
+fn decide(
+    decisions: &mut Vec<Decision>,
+    components: Components,
+    name: &str,
+    why: impl FnOnce(bool) -> String,
+) -> Result<()> {
+    if name == "sh_degree" {
+        return Ok(());
+    }
+    let on = serde_json::to_value(components)?[name] == true;
+    decisions.retain(|d| d.component != name);
+    decisions.push(Decision {
+        component: name.into(),
+        enabled: on,
+        reason: why(on),
+    });
+    Ok(())
 }
 
 /// Overlays on `base` the settings that `args` gave on the command line: each given id is a
@@ -236,14 +249,10 @@ fn partial_train(
         &f.path,
     )?;
     if let Some(serde_json::Value::Object(set)) = given.get("components") {
-        for name in set.keys().filter(|k| k.as_str() != "sh_degree") {
-            let on = serde_json::to_value(train.components)?[name] == true;
-            decisions.retain(|d| &d.component != name);
-            decisions.push(Decision {
-                component: name.clone(),
-                enabled: on,
-                reason: format!("{name}: {on} in {}", f.path.display()),
-            });
+        for name in set.keys() {
+            decide(&mut decisions, train.components, name, |on| {
+                format!("{name}: {on} in {}", f.path.display())
+            })?;
         }
     }
     Ok((train, decisions))
@@ -305,16 +314,10 @@ pub(crate) fn resolve_config(
     );
     // A component switched on the command line is a decision too.
     for id in &args.given {
-        if let Some(name) = id.strip_prefix("train.components.")
-            && name != "sh_degree"
-        {
-            let on = serde_json::to_value(given_train.components)?[name] == true;
-            decisions.retain(|d| d.component != name);
-            decisions.push(Decision {
-                component: name.into(),
-                enabled: on,
-                reason: format!("--{} {on} on the command line", name.replace('_', "-")),
-            });
+        if let Some(name) = id.strip_prefix("train.components.") {
+            decide(&mut decisions, given_train.components, name, |on| {
+                format!("--{} {on} on the command line", name.replace('_', "-"))
+            })?;
         }
     }
     train = given_train;

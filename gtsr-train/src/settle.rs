@@ -78,7 +78,7 @@ impl Settle {
 
     /// The line a run prints for `change`; the first time the mesh has settled
     /// ([`SETTLED_FOOTPRINTS`]) it says so, and how to stop a run there.
-    pub fn note(&mut self, change: &MeshChange) -> Option<String> {
+    pub fn note(&mut self, change: &MeshChange) -> String {
         let moved = format!(
             "mesh: moved {:.3} footprints since step {} (chamfer between the two meshes; {:.1} % \
              of each within half a footprint of the other)",
@@ -88,19 +88,19 @@ impl Settle {
         );
         if !change.settled() {
             self.settled_at = None;
-            return Some(moved);
+            return moved;
         }
         if self.settled_at.is_some() {
-            return Some(moved);
+            return moved;
         }
         self.settled_at = Some(change.since);
-        Some(format!(
+        format!(
             "{moved}: it has settled (less than {SETTLED_FOOTPRINTS} footprints, {} % within \
              half of one); training on may not change it, and `--stop-at {}` stops a run of this \
              schedule there",
             100.0 * SETTLED_SHARE,
             change.step
-        ))
+        )
     }
 
     /// The step since which the mesh has settled ([`MeshChange::settled`]), if it has.
@@ -135,19 +135,19 @@ mod tests {
         let c = settle.compare(200, &tetra(1.05)).unwrap().unwrap();
         assert_eq!((c.step, c.since), (200, 100));
         assert!(c.footprints > 1.0, "{c:?}");
-        assert!(!settle.note(&c).unwrap().contains("settled"));
+        assert!(!settle.note(&c).contains("settled"));
         assert_eq!(settle.settled_since(), None);
         // The same mesh again: settled since step 200, said once.
         let c = settle.compare(300, &tetra(1.05)).unwrap().unwrap();
         assert!(c.footprints < 1e-4, "{c:?}");
-        let line = settle.note(&c).unwrap();
+        let line = settle.note(&c);
         assert!(
             line.contains("settled") && line.contains("--stop-at 300"),
             "{line}"
         );
         assert_eq!(settle.settled_since(), Some(200));
         let c = settle.compare(400, &tetra(1.05)).unwrap().unwrap();
-        assert!(!settle.note(&c).unwrap().contains("settled"));
+        assert!(!settle.note(&c).contains("settled"));
         assert_eq!(settle.settled_since(), Some(200));
         // It moves again: no longer settled.
         let c = settle.compare(500, &tetra(1.2)).unwrap().unwrap();

@@ -142,8 +142,8 @@ pub fn front_depth(
 }
 
 /// The mean over the `valid` pixels where the reference depth `R` (detached) is finite and
-/// positive of `|D - R|` in pixel footprints (`R / f`): the measure [`front_depth`] and
-/// [`hull_depth`] share.
+/// positive of `|D - R|` in pixel footprints (`R / f`): the measure [`front_depth`],
+/// [`hull_depth`] and [`interior_front`] share.
 fn footprint_gap(
     depth: &Tensor<2>,
     reference: &Tensor<2>,
@@ -155,12 +155,17 @@ fn footprint_gap(
         .clone()
         .bool_and(reference.clone().is_finite())
         .bool_and(reference.clone().greater_elem(0.0));
-    let scale = reference.clone().clamp_min(1e-6).recip() * focal;
-    let gap = ((depth.clone() - reference) * scale)
+    let gap = signed_footprints(depth.clone(), reference, focal)
         .abs()
         .mask_fill(usable.clone().bool_not(), 0.0);
     let count = usable.float().sum().clamp_min(1.0);
     gap.sum() / count
+}
+
+/// `D - R` in pixel footprints at the reference depth (`R / f`, `R` clamped at 1e-6).
+fn signed_footprints(depth: Tensor<2>, reference: Tensor<2>, focal: f64) -> Tensor<2> {
+    let scale = reference.clone().clamp_min(1e-6).recip() * focal;
+    (depth - reference) * scale
 }
 
 /// How far apart, in pixel footprints, the blended depth and the masks' bound's depth may lie
@@ -191,8 +196,7 @@ pub fn hull_depth(
     let detached = depth.clone().detach();
     // A NaN gap compares false: such a pixel does not count.
     let within = |reference: Tensor<2>| {
-        let scale = reference.clone().clamp_min(1e-6).recip() * focal;
-        ((detached.clone() - reference.clone()) * scale)
+        signed_footprints(detached.clone(), reference.clone(), focal)
             .abs()
             .lower_elem(HULL_DEPTH_BAND)
             .bool_and(reference.greater_elem(0.0))
@@ -228,10 +232,9 @@ pub fn interior_front(
     valid: &Tensor<2, Bool>,
 ) -> Tensor<1> {
     let front = front.clone().detach();
-    let scale = front.clone().clamp_min(1e-6).recip() * focal;
     // A NaN gap compares false: such a pixel does not count.
-    let behind = ((front.clone() - depth.clone().detach()) * scale)
-        .greater_elem(INTERIOR_FRONT_BAND)
+    let behind = signed_footprints(depth.clone().detach(), front.clone(), focal)
+        .lower_elem(-INTERIOR_FRONT_BAND)
         .bool_and(front.clone().greater_elem(0.0));
     footprint_gap(depth, &front, focal, &valid.clone().bool_and(behind))
 }

@@ -649,9 +649,9 @@ impl Trainer {
                 );
             }
             if stage2 && w.interior_front > 0.0 {
+                // Reads the interior set detached: the term moves the surface only.
                 let front = self
                     .model
-                    .detached()
                     .render_interior_front(&view.camera, losses::INTERIOR_FRONT_TRANSMITTANCE)?;
                 if let Some(front) = front {
                     passes += 1;
