@@ -1,4 +1,5 @@
-//! Loads a scene (Blender/NeRF or COLMAP layout) and prints a summary.
+//! Loads a scene (Blender/NeRF or COLMAP layout) and prints a summary, with what its images
+//! say about the light ([`gtsr_data::light`]).
 //!
 //! `cargo run --release -p gtsr-data --example scene_summary -- <scene folder>`
 //! (defaults to the development scene `../shared/data/wax_knot`).
@@ -69,6 +70,29 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     if !scene.points.is_empty() {
         println!("  {} sparse points", scene.points.len());
+    }
+    let t = std::time::Instant::now();
+    let settings = gtsr_data::light::LightSettings::default();
+    match gtsr_data::light::read_views(&scene.train.iter().collect::<Vec<_>>(), &settings) {
+        Some(gtsr_data::light::Reading {
+            light: e,
+            exposure_stops,
+        }) => println!(
+            "  light {} ({:.2} s): {}\n  exposure per view (stops): {}",
+            if e.follows_camera() {
+                "at the camera"
+            } else {
+                "not at the camera"
+            },
+            t.elapsed().as_secs_f64(),
+            e.describe(),
+            exposure_stops
+                .iter()
+                .map(|s| format!("{s:+.2}"))
+                .collect::<Vec<_>>()
+                .join(" ")
+        ),
+        None => println!("  light: cannot be read (no masks, or too few points seen)"),
     }
     Ok(())
 }

@@ -11,6 +11,7 @@
 //! * [`synthetic`]: procedural shapes and [`synthetic::generate_scene`].
 //! * [`parse`]: range-checked parsers for command-line values.
 //! * [`ply`]: PLY meshes.
+//! * [`light`]: whether the light moves with the camera, read from the images.
 //!
 //! Bad input gives a [`DataError`] naming the file (and frame) and the problem; nothing
 //! panics on bad input.
@@ -22,6 +23,7 @@ pub mod camera;
 pub mod colmap;
 mod error;
 pub mod image_io;
+pub mod light;
 pub mod parse;
 pub mod ply;
 pub mod scene;

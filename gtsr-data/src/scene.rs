@@ -325,30 +325,34 @@ pub fn composite(rgb: &mut [f32], alpha: &[f32], bg: Background, key: (u64, usiz
 
 /// See [`NormaliseFrom::Cameras`].
 pub fn normalisation_from_cameras(views: &[View]) -> Normalisation {
-    if views.is_empty() {
+    normalisation_of_cameras(&views.iter().map(|v| &v.camera).collect::<Vec<_>>())
+}
+
+/// [`normalisation_from_cameras`] of the cameras alone.
+pub fn normalisation_of_cameras(cameras: &[&Camera]) -> Normalisation {
+    if cameras.is_empty() {
         return Normalisation::IDENTITY;
     }
     let mut a = Mat3::ZERO;
     let mut b = Vec3::ZERO;
     let mut mean = Vec3::ZERO;
-    for v in views {
-        let o = v.camera.centre();
-        let d = v.camera.forward();
+    for c in cameras {
+        let o = c.centre();
+        let d = c.forward();
         let p = Mat3::IDENTITY - Mat3::from_cols(d * d.x, d * d.y, d * d.z);
         a += p;
         b += p * o;
         mean += o;
     }
-    mean /= views.len() as f32;
-    let centre = if a.determinant().abs() > 1e-6 * (views.len() as f32).powi(3) {
+    mean /= cameras.len() as f32;
+    let centre = if a.determinant().abs() > 1e-6 * (cameras.len() as f32).powi(3) {
         a.inverse() * b
     } else {
         mean
     };
-    let radius = views
+    let radius = cameras
         .iter()
-        .map(|v| {
-            let c = &v.camera;
+        .map(|c| {
             let half = 0.5
                 * (2.0 * (0.5 * c.width as f32 / c.fx).atan())
                     .min(2.0 * (0.5 * c.height as f32 / c.fy).atan());

@@ -409,6 +409,58 @@ pub fn hollow_depths(
         .collect()
 }
 
+/// Per view, the dark pixels `dark` of the cameras `from` carried to the cameras `to` of the
+/// same poses at another size (the training views beside the masks' native ones): a pixel of
+/// `to` is dark where the centre of a dark pixel of `from` falls in it, or where its own
+/// centre falls in a dark pixel of `from` (so that a coarser view takes every dark pixel and
+/// a finer one covers them whole). `None` when the views differ in number or pose.
+pub fn dark_in_views(
+    dark: &[Vec<bool>],
+    from: &[&Camera],
+    to: &[&Camera],
+) -> Option<Vec<Vec<bool>>> {
+    if dark.len() != from.len() || from.len() != to.len() {
+        return None;
+    }
+    if (from.iter().zip(to)).any(|(a, b)| a.world_to_camera != b.world_to_camera) {
+        return None;
+    }
+    let carried = (dark.iter().zip(from).zip(to))
+        .map(|((d, a), b)| {
+            let (aw, ah) = (a.width as usize, a.height as usize);
+            let (bw, bh) = (b.width as usize, b.height as usize);
+            // Continuous pixel coordinates of one pinhole in the other's.
+            let a_to_b = |u: f32, v: f32| {
+                (
+                    (u - a.cx) * b.fx / a.fx + b.cx,
+                    (v - a.cy) * b.fy / a.fy + b.cy,
+                )
+            };
+            let b_to_a = |u: f32, v: f32| {
+                (
+                    (u - b.cx) * a.fx / b.fx + a.cx,
+                    (v - b.cy) * a.fy / b.fy + a.cy,
+                )
+            };
+            let mut out = vec![false; bw * bh];
+            for (p, _) in d.iter().enumerate().filter(|(_, f)| **f) {
+                let (u, v) = a_to_b((p % aw) as f32 + 0.5, (p / aw) as f32 + 0.5);
+                if u >= 0.0 && v >= 0.0 && (u as usize) < bw && (v as usize) < bh {
+                    out[v as usize * bw + u as usize] = true;
+                }
+            }
+            for (q, o) in out.iter_mut().enumerate() {
+                let (u, v) = b_to_a((q % bw) as f32 + 0.5, (q / bw) as f32 + 0.5);
+                if u >= 0.0 && v >= 0.0 && (u as usize) < aw && (v as usize) < ah {
+                    *o |= d[v as usize * aw + u as usize];
+                }
+            }
+            out
+        })
+        .collect();
+    Some(carried)
+}
+
 /// A Blender-style random-walk material: base colour (turned into a single-scattering albedo
 /// by Cycles' inversion) and mean free path per channel, a dielectric boundary of IOR 1.45
 /// and GGX alpha 0.04, isotropic scattering.
@@ -615,6 +667,38 @@ mod tests {
             assert!(e.contains("hollow search"), "{e}");
         }
         HollowSettings::default().validate().unwrap();
+    }
+
+    /// Dark pixels carried to a coarser and a finer view of the same pose cover the same
+    /// patch; another pose carries nothing.
+    #[test]
+    fn dark_pixels_are_carried_to_views_of_another_size() {
+        let native = Camera::look_at(2.0 * Vec3::X, Vec3::ZERO, Vec3::Z, 0.7, 24, 24);
+        let mut dark = vec![false; 24 * 24];
+        for p in [
+            11 * 24 + 11,
+            11 * 24 + 12,
+            12 * 24 + 11,
+            12 * 24 + 12,
+            3 * 24 + 20,
+        ] {
+            dark[p] = true;
+        }
+        let coarse = native.downscaled(2);
+        let fine = Camera::look_at(2.0 * Vec3::X, Vec3::ZERO, Vec3::Z, 0.7, 48, 48);
+        let same = dark_in_views(std::slice::from_ref(&dark), &[&native], &[&native]).unwrap();
+        assert_eq!(same[0], dark);
+        let c = dark_in_views(std::slice::from_ref(&dark), &[&native], &[&coarse]).unwrap();
+        let lit: Vec<usize> = (0..c[0].len()).filter(|&q| c[0][q]).collect();
+        assert_eq!(
+            lit,
+            vec![12 + 10, 5 * 12 + 5, 5 * 12 + 6, 6 * 12 + 5, 6 * 12 + 6]
+        );
+        let f = dark_in_views(std::slice::from_ref(&dark), &[&native], &[&fine]).unwrap();
+        assert_eq!(f[0].iter().filter(|x| **x).count(), 4 * 5);
+        assert!(f[0][22 * 48 + 22] && f[0][25 * 48 + 25] && f[0][7 * 48 + 41]);
+        let moved = Camera::look_at(2.0 * Vec3::Y, Vec3::ZERO, Vec3::Z, 0.7, 24, 24);
+        assert!(dark_in_views(&[dark], &[&native], &[&moved]).is_none());
     }
 
     /// Six views of a sphere: cameras, masks (its coverage) and a uniform radiance.

@@ -3,6 +3,7 @@
 //! weight, the edge-aware smoothness weights). Also what `auto` reads from a scene.
 
 use burn::tensor::{Device, Tensor, TensorData};
+use gtsr_data::light::LightSettings;
 use gtsr_data::{Scene, View};
 use gtsr_render_kernels::Camera;
 
@@ -263,8 +264,8 @@ pub fn neighbours(cameras: &[Camera], max_angle_deg: f64) -> Vec<Vec<usize>> {
 }
 
 /// Gathers what [`crate::config::auto_components`] decides from: `meta.json` beside the
-/// transforms when present (the light and the material), the background level of the masked
-/// images, and the neighbour structure of the training cameras.
+/// transforms when present (the light and the material), whether the images' shading follows
+/// the camera ([`gtsr_data::light`]), and the neighbour structure of the training cameras.
 pub fn scene_evidence(scene: &Scene, max_angle_deg: f64) -> Result<SceneEvidence, ModelError> {
     let mut e = SceneEvidence {
         train_views: scene.train.len(),
@@ -285,20 +286,7 @@ pub fn scene_evidence(scene: &Scene, max_angle_deg: f64) -> Result<SceneEvidence
             e.opaque = Some(total <= 0.0);
         }
     }
-    let (mut sum, mut count) = (0.0f64, 0usize);
-    for v in &scene.train {
-        if let Some(m) = &v.mask {
-            for (i, a) in m.iter().enumerate() {
-                if *a < 0.5 {
-                    sum += f64::from(v.rgb[3 * i] + v.rgb[3 * i + 1] + v.rgb[3 * i + 2]) / 3.0;
-                    count += 1;
-                }
-            }
-        }
-    }
-    if count > 0 {
-        e.background_level = Some((sum / count as f64) as f32);
-    }
+    e.light = gtsr_data::light::light_evidence(&scene.train, &LightSettings::default());
     let cams: Vec<Camera> = scene
         .train
         .iter()

@@ -41,6 +41,12 @@ pub struct Args {
     /// data's own size where it is smaller (64 on the built-in scene).
     #[arg(long, value_parser = clap::value_parser!(u32).range(8..))]
     pub resolution: Option<u32>,
+    /// Each view's exposure: `auto` reads it from the images (the views' brightness on the
+    /// masks' hull) and brings every view to their mean where one departs from it by more than
+    /// half a stop, as a phone's auto exposure makes them; `off` leaves the images as they are.
+    /// Default: auto.
+    #[arg(long, value_enum)]
+    pub exposure: Option<ExposureMode>,
     /// Components: `full` (the paper's model), the ablations `no-pbr`, `no-fresnel` and
     /// `no-interior`, `pgsr` (surface set, PGSR's terms), or `auto` (the full model less what
     /// the scene shows it does not need; the run's first lines say what).
@@ -110,6 +116,19 @@ impl Args {
             .collect();
         args
     }
+}
+
+/// What a run does with the views' exposures ([`Args::exposure`]).
+#[derive(
+    Copy, Clone, Debug, Default, PartialEq, Eq, ValueEnum, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum ExposureMode {
+    /// Read from the images and taken out where the views differ.
+    #[default]
+    Auto,
+    /// The images as they are.
+    Off,
 }
 
 /// Compute backend.

@@ -29,6 +29,6 @@ mod run;
 mod settings;
 mod settle;
 
-pub use args::{Args, Backend, DEFAULT_EVAL_SHADING_ROUNDS};
+pub use args::{Args, Backend, DEFAULT_EVAL_SHADING_ROUNDS, ExposureMode};
 pub use run::{Outcome, RunEvent, run, run_with};
 pub use settings::ConfigError;

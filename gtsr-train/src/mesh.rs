@@ -211,9 +211,10 @@ pub(crate) fn extract_meshes(
 
 /// With [`gtsr_mesh::MeshConfig::shading_radiance_rendered`] above 0 in `config`, the masks
 /// whose images feed the shading refinement blended with the model's C_SH render of each
-/// training view, linear as the images are read; `None` where the refinement does not run (no
-/// images, no carving, no anchor) or the trained views' size is not the masks' (the render
-/// would be resampled). What it did is printed unless `coarse`.
+/// training view at the masks' own size (rendered from the masks' cameras where the trained
+/// views are another size), linear as the images are read; `None` where the refinement does
+/// not run (no images, no carving, no anchor) or the views are not the masks' views. What it
+/// did is printed unless `coarse`.
 pub(crate) fn masks_with_rendered_radiance(
     trainer: &Trainer,
     scene: &Scene,
@@ -230,13 +231,13 @@ pub(crate) fn masks_with_rendered_radiance(
         return Ok(None);
     }
     let views = trainer.views();
-    let same_size = views.len() == masks.views.len()
-        && (views.iter().zip(&masks.views))
-            .all(|(v, (c, _))| v.size() == (c.width as usize, c.height as usize));
-    if !same_size {
+    let same_views = views.len() == masks.views.len()
+        && (scene.train.iter().zip(&masks.views))
+            .all(|(data, (c, _))| data.camera.world_to_camera == c.world_to_camera);
+    if !same_views {
         if !coarse {
             println!(
-                "mesh.shading_radiance_rendered: the trained views' size is not the masks', so \
+                "mesh.shading_radiance_rendered: the trained views are not the masks' views, so \
                  the shading reads the images alone"
             );
         }
@@ -249,9 +250,17 @@ pub(crate) fn masks_with_rendered_radiance(
         geometry: false,
         ..trainer.render_options(trainer.steps_done(), false)
     };
-    let rendered = (views.iter().zip(&scene.train))
-        .map(|(v, data)| {
-            let r = model.render(&v.camera, &v.rays, opts)?;
+    let mut resized = 0;
+    let rendered = (views.iter().zip(&scene.train).zip(&masks.views))
+        .map(|((v, data), (native, _))| {
+            let r = if v.size() == (native.width as usize, native.height as usize) {
+                model.render(&v.camera, &v.rays, opts)?
+            } else {
+                resized += 1;
+                let camera = kernel_camera(native, &data.name)?;
+                let rays = pixel_rays(&camera, &v.rays.device());
+                model.render(&camera, &rays, opts)?
+            };
             let img = rendered_image(r.c_sh);
             let srgb = data.encoding == gtsr_data::Encoding::Srgb;
             Ok(gtsr_mesh::shading::linear_radiance(&img, srgb, None))
@@ -262,9 +271,15 @@ pub(crate) fn masks_with_rendered_radiance(
         .with_rendered_radiance(&rendered, share)
         .context("blending the rendered radiance into the images'")?;
     if !coarse {
+        let at = if resized > 0 {
+            let (c, _) = &masks.views[0];
+            format!(" at the masks' {}x{}", c.width, c.height)
+        } else {
+            String::new()
+        };
         println!(
             "the shading reads {:.0} % of the model's render and {:.0} % of the images ({} \
-             views rendered in {:.1} s)",
+             views rendered{at} in {:.1} s)",
             100.0 * share,
             100.0 * (1.0 - share),
             rendered.len(),

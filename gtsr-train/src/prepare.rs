@@ -15,6 +15,84 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::args::Backend;
 
+/// The least departure of a view's exposure from the views' mean, in stops, that a run takes
+/// out of the images: above what [`gtsr_data::light::read_views`] reads on views of one
+/// exposure (at most 0.28 stops on the development scenes, from shading its model of the
+/// light does not explain).
+pub const EXPOSURE_MIN_SPREAD: f32 = 0.5;
+
+/// Each view's exposure, read from the images once and taken out of them on every load of
+/// the dataset (training, test, coarse, fusion and full-size views alike); empty when the
+/// views are left as they are.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Exposure {
+    train: Vec<f32>,
+    test: Vec<f32>,
+}
+
+impl Exposure {
+    /// Reads the exposures of `scene`'s training and test views together
+    /// ([`gtsr_data::light::read_views`]) and keeps them where a view departs from the mean by
+    /// more than [`EXPOSURE_MIN_SPREAD`]; says what it found.
+    pub(crate) fn read(scene: &Scene) -> Exposure {
+        let views: Vec<&gtsr_data::View> = scene.train.iter().chain(&scene.test).collect();
+        if views.iter().any(|v| v.mask.is_none()) {
+            return Exposure::default();
+        }
+        let settings = gtsr_data::light::LightSettings::default();
+        let Some(reading) = gtsr_data::light::read_views(&views, &settings) else {
+            println!(
+                "exposure: cannot be read from the images (too little of the masks' hull seen)"
+            );
+            return Exposure::default();
+        };
+        let spread = reading.exposure_spread();
+        if spread <= EXPOSURE_MIN_SPREAD {
+            println!(
+                "exposure: the views agree (read within {spread:.2} stops of their mean, at most \
+                 {EXPOSURE_MIN_SPREAD}); images left as they are"
+            );
+            return Exposure::default();
+        }
+        let mut stops = reading.exposure_stops;
+        let test = stops.split_off(scene.train.len());
+        println!(
+            "exposure: the views differ by up to {spread:.2} stops from their mean (read from the \
+             images); each view's image is brought to the mean"
+        );
+        Exposure { train: stops, test }
+    }
+
+    /// Whether the views' exposures are taken out.
+    pub(crate) fn applies(&self) -> bool {
+        !self.train.is_empty()
+    }
+
+    /// The stops of the training views, then the test views.
+    pub(crate) fn stops(&self) -> (&[f32], &[f32]) {
+        (&self.train, &self.test)
+    }
+
+    /// Takes the exposures out of `scene`'s views (the same views at any size).
+    pub(crate) fn apply(&self, scene: &mut Scene) {
+        if self.applies() {
+            gtsr_data::light::normalise_exposure(&mut scene.train, &self.train);
+            gtsr_data::light::normalise_exposure(&mut scene.test, &self.test);
+        }
+    }
+}
+
+/// Loads the dataset with `opts` and takes `exposure` out of its images.
+pub(crate) fn load_exposed(
+    data_dir: &Path,
+    opts: &LoadOptions,
+    exposure: &Exposure,
+) -> Result<Scene> {
+    let mut scene = load_scene(data_dir, opts)?;
+    exposure.apply(&mut scene);
+    Ok(scene)
+}
+
 /// The built-in scene: a wax teddy bear, 64x64, 60 training and 8 test views.
 pub(crate) fn default_scene_config() -> SceneConfig {
     let mut c = SceneConfig::new(ShapeKind::Bear, MaterialPreset::Wax);
@@ -80,18 +158,20 @@ pub(crate) fn fusion_views(
     data_dir: &Path,
     opts: &LoadOptions,
     scene: &Scene,
+    exposure: &Exposure,
 ) -> Result<Vec<gtsr_data::View>> {
     let trained = scene.train[0].width().max(scene.train[0].height());
     let wanted = mesh_resolution.unwrap_or(trained);
     if wanted <= trained {
         return Ok(Vec::new());
     }
-    let fusion = load_scene(
+    let fusion = load_exposed(
         data_dir,
         &LoadOptions {
             downscale: Downscale::MaxSide(wanted),
             ..opts.clone()
         },
+        exposure,
     )
     .with_context(|| format!("loading {} for mesh fusion", data_dir.display()))?;
     if fusion.train.len() != scene.train.len()
@@ -156,6 +236,7 @@ pub(crate) fn native_masks(
     shading: bool,
     edge_hull: bool,
     profile: Option<gtsr_mesh::hull::EdgeProfile>,
+    exposure: &Exposure,
 ) -> Result<Option<gtsr_mesh::MasksAlone>> {
     if scene.train.iter().any(|v| v.mask.is_none()) {
         return Ok(None);
@@ -165,12 +246,13 @@ pub(crate) fn native_masks(
     let views = if matches!(opts.downscale, Downscale::None) {
         &scene.train
     } else {
-        native = load_scene(
+        native = load_exposed(
             data_dir,
             &LoadOptions {
                 downscale: Downscale::None,
                 ..opts.clone()
             },
+            exposure,
         )
         .with_context(|| format!("loading the masks of {} at full size", data_dir.display()))?;
         if native.train.len() != scene.train.len() || native.train.iter().any(|v| v.mask.is_none())
@@ -282,4 +364,48 @@ pub(crate) fn points_on_mesh(
             p.to_array()
         })
         .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A marble sphere lit from the camera, 40 px, 24 training and 4 test views.
+    fn sphere_scene(dir: &Path) -> Scene {
+        let mut c = SceneConfig::new(ShapeKind::Sphere, MaterialPreset::Marble);
+        c.resolution = 40;
+        c.n_train = 24;
+        c.n_test = 4;
+        c.spp = 8;
+        generate_scene(dir, &c, |_| {}).unwrap();
+        load_scene(dir, &LoadOptions::default()).unwrap()
+    }
+
+    #[test]
+    fn views_that_differ_in_exposure_are_brought_to_their_mean() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut scene = sphere_scene(dir.path());
+        assert!(!Exposure::read(&scene).applies(), "one exposure");
+        // Up to a stop either way, as a phone's auto exposure.
+        let n = scene.train.len() + scene.test.len();
+        let set: Vec<f32> = (0..n).map(|k| ((k * 5) % 9) as f32 / 4.0 - 1.0).collect();
+        let brighten: Vec<f32> = set.iter().map(|s| -s).collect();
+        gtsr_data::light::normalise_exposure(
+            scene.train.iter_mut().chain(scene.test.iter_mut()),
+            &brighten,
+        );
+        let exposure = Exposure::read(&scene);
+        assert!(exposure.applies());
+        let (train, test) = exposure.stops();
+        let mean = set.iter().sum::<f32>() / n as f32;
+        for (k, read) in train.iter().chain(test).enumerate() {
+            assert!(
+                (read - (set[k] - mean)).abs() < 0.25,
+                "view {k}: {read} for {}",
+                set[k] - mean
+            );
+        }
+        exposure.apply(&mut scene);
+        assert!(!Exposure::read(&scene).applies(), "taken out");
+    }
 }

@@ -14,13 +14,13 @@ use gtsr_model::trainer::{StepReport, StepTimes, Trainer, initial_points};
 use gtsr_model::views::upload_views;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::args::{Args, Backend};
+use crate::args::{Args, Backend, ExposureMode};
 use crate::evaluation::{Evaluation, evaluate, score_masks_alone};
 use crate::mesh::{MeshSettings, hull_bounds};
 use crate::outputs::{finish, write_json, write_splats};
 use crate::prepare::{
-    attach_hull_depth, camera_extent, compute_device, ensure_default_scene, fusion_views,
-    native_masks, points_on_mesh,
+    Exposure, attach_hull_depth, camera_extent, compute_device, ensure_default_scene, fusion_views,
+    load_exposed, native_masks, points_on_mesh,
 };
 use crate::profile::write_profile;
 use crate::settings::{
@@ -131,11 +131,20 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
         apply_normalisation: !blender,
         ..LoadOptions::default()
     };
-    let scene = load_scene(&data_dir, &opts)
+    let mut scene = load_scene(&data_dir, &opts)
         .with_context(|| format!("loading the dataset {}", data_dir.display()))?;
     if scene.train.is_empty() {
         bail!("{}: no training views", data_dir.display());
     }
+    let exposure_mode = args
+        .exposure
+        .or(file.as_ref().and_then(|f| f.exposure))
+        .unwrap_or_default();
+    let exposure = match exposure_mode {
+        ExposureMode::Auto => Exposure::read(&scene),
+        ExposureMode::Off => Exposure::default(),
+    };
+    exposure.apply(&mut scene);
     let iterations =
         args.iterations
             .map(|n| n as usize)
@@ -162,6 +171,7 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
     let resolved = ResolvedConfig {
         data: data_dir.clone(),
         resolution,
+        exposure: exposure_mode,
         preset,
         decisions,
         train: config.clone(),
@@ -233,6 +243,13 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
         )
     };
     write_json(&args.out.join("config.json"), &resolved)?;
+    if exposure.applies() {
+        let (train, test) = exposure.stops();
+        write_json(
+            &args.out.join("exposure.json"),
+            &serde_json::json!({ "train_stops": train, "test_stops": test }),
+        )?;
+    }
     let iterations = trainer.config().iterations;
     // Where this invocation stops: the end of the schedule, or `--stop-at`.
     let stop_at = match args.stop_at.map(|n| n as usize) {
@@ -252,12 +269,13 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
     if trainer.steps_done() < trainer.config().coarse_until {
         let (w, h) = trainer.views()[0].size();
         let side = (w.max(h) / 2).max(8) as u32;
-        let coarse = load_scene(
+        let coarse = load_exposed(
             &data_dir,
             &LoadOptions {
                 downscale: Downscale::MaxSide(side),
                 ..opts.clone()
             },
+            &exposure,
         )
         .with_context(|| format!("loading {} at {side} px", data_dir.display()))?;
         let coarse_views = upload_views(&coarse.train, &device)
@@ -314,6 +332,7 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
         shading,
         edge_hull,
         mesh_config.edge_profile(),
+        &exposure,
     )?;
     match (trainer.config().weights.hull_depth > 0.0, masks.as_ref()) {
         (false, _) => {}
@@ -339,7 +358,13 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
         }
     }
     let mesh_settings = MeshSettings {
-        fusion_views: fusion_views(mesh_config.mesh_resolution, &data_dir, &opts, &scene)?,
+        fusion_views: fusion_views(
+            mesh_config.mesh_resolution,
+            &data_dir,
+            &opts,
+            &scene,
+            &exposure,
+        )?,
         config: mesh_config,
         masks_alone: score_masks_alone(masks.as_ref(), gt_mesh.as_ref(), &scene)?,
         masks,

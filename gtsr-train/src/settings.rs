@@ -10,13 +10,16 @@ use gtsr_model::config::{Components, Decision, Preset, TrainConfig, auto_compone
 use gtsr_model::views::scene_evidence;
 use serde::{Deserialize, Serialize};
 
-use crate::args::Args;
+use crate::args::{Args, ExposureMode};
 
 /// What `config.json` holds: every setting, plus what was decided and why.
 #[derive(Serialize, Deserialize)]
 pub(crate) struct ResolvedConfig {
     pub(crate) data: PathBuf,
     pub(crate) resolution: u32,
+    /// Absent in the files of runs from before exposures were read (`auto`).
+    #[serde(default)]
+    pub(crate) exposure: ExposureMode,
     pub(crate) preset: Preset,
     pub(crate) decisions: Vec<Decision>,
     pub(crate) train: TrainConfig,
@@ -45,7 +48,15 @@ impl std::fmt::Display for ConfigError {
 impl std::error::Error for ConfigError {}
 
 /// The top-level fields of a run's `config.json`.
-const RUN_FIELDS: [&str; 6] = ["data", "resolution", "preset", "decisions", "train", "mesh"];
+const RUN_FIELDS: [&str; 7] = [
+    "data",
+    "resolution",
+    "exposure",
+    "preset",
+    "decisions",
+    "train",
+    "mesh",
+];
 
 /// What `--config` gives: a run's `config.json` or any part of it, or a bare training
 /// configuration (the `train` part alone) or any part of that. What a file leaves out comes
@@ -55,6 +66,7 @@ pub(crate) struct FileConfig {
     pub(crate) path: PathBuf,
     pub(crate) data: Option<PathBuf>,
     pub(crate) resolution: Option<u32>,
+    pub(crate) exposure: Option<ExposureMode>,
     pub(crate) preset: Option<Preset>,
     pub(crate) decisions: Option<Vec<Decision>>,
     /// The `train` fields given.
@@ -111,6 +123,7 @@ pub(crate) fn read_config(path: &Path) -> Result<FileConfig> {
         path: path.to_path_buf(),
         data: take(&mut fields, "data", &bad)?,
         resolution: take(&mut fields, "resolution", &bad)?,
+        exposure: take(&mut fields, "exposure", &bad)?,
         preset: take(&mut fields, "preset", &bad)?,
         decisions: take(&mut fields, "decisions", &bad)?,
         train: fields.remove("train"),

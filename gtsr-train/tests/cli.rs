@@ -578,6 +578,38 @@ fn a_partial_configuration_overlays_the_defaults() {
 /// `--init-mesh` starts the surface set on the given mesh (the sphere's own: every splat a
 /// step later lies on the unit sphere, where the mask-carved start fills the ball), and a
 /// missing or broken mesh is an error naming the file.
+/// Trained below the masks' resolution (12 px against 24), the final mesh still reads the
+/// masks and the shading at theirs: the model's render for the shading is made from the
+/// masks' cameras, and the hollow search runs on the fusion views of another size.
+#[test]
+fn a_run_below_the_masks_resolution_reads_them_at_theirs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("scene");
+    tiny_scene(&scene);
+    let out = tmp.path().join("out");
+    let o = gtsr_train(
+        &scene,
+        &out,
+        &[
+            "--iterations",
+            "40",
+            "--resolution",
+            "12",
+            "--eval-points",
+            "0",
+        ],
+    );
+    let log = text(&o);
+    assert!(o.status.success(), "{log}");
+    assert!(
+        log.contains("masks alone at 24x24")
+            && log.contains("views rendered at the masks' 24x24")
+            && log.contains("shading refinement: normals solved on")
+            && !log.contains("not the masks' views"),
+        "{log}"
+    );
+}
+
 #[test]
 fn the_surface_set_starts_on_a_given_mesh() {
     let tmp = tempfile::tempdir().unwrap();

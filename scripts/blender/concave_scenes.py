@@ -22,12 +22,20 @@ colour darkened in patches by a noise fixed to the object, as amber with inclusi
 rendered only when `--scenes` names it: its patches move with the surface between views, the
 parallax a uniform material lacks.
 
+`--light studio` renders the same scenes under fixed lights instead of the flash: a sun
+(3 W/m^2, from above and to one side, the same in every view) and a dim grey world (0.3 grey
+at strength 0.3), into `DIR/<shape>_<material>_studio/`: the case where the light does not
+move with the camera. `--mesh NAME=PLY` adds a shape read from a watertight binary or ASCII
+PLY (normalised like the others), e.g. `--mesh knot=../shared/data/wax_knot/mesh.ply` with
+the `wax` material (wax_knot's own) for the knot under studio lights.
+
 Usage (Debian's `blender` package, 3.4, renders headless):
 
     blender -b --python scripts/blender/concave_scenes.py -- --out DIR [--scenes a,b]
-        [--samples 128] [--resolution 256] [--train 80] [--test 16]
+        [--light flash|studio] [--mesh NAME=PLY] [--samples 128] [--resolution 256]
+        [--train 80] [--test 16]
 
-writes `DIR/<shape>_<material>/` in the NeRF/Blender layout (`transforms_train.json`,
+writes `DIR/<shape>_<material>[_studio]/` in the NeRF/Blender layout (`transforms_train.json`,
 `transforms_test.json`, `train/r_K.png`, `test/r_K.png`, `mesh.ply`). A scene whose
 folder already holds every image is skipped, so an interrupted run resumes.
 """
@@ -46,6 +54,11 @@ GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 CAMERA_DISTANCE = 4.0
 FOV_X = 0.6911112070083618
 LIGHT_WATTS = 400.0
+# `--light studio`: a fixed sun and a dim grey world, the same in every view.
+SUN_STRENGTH = 3.0
+SUN_DIRECTION = (0.45, -0.35, 0.82)  # towards the sun, world space (z up)
+WORLD_GREY = 0.3
+WORLD_STRENGTH = 0.3
 
 MATERIALS = {
     # name: (base colour, subsurface radius, roughness, mottled)
@@ -54,6 +67,8 @@ MATERIALS = {
     # `long` whose colour is mottled by a noise fixed to the object (amber with inclusions):
     # texture that moves with the surface between views, i.e. parallax.
     "mottled": ((0.95, 0.65, 0.2), (0.8, 0.6, 0.3), 0.2, True),
+    # wax_knot's own material (`../shared/data/README.md`), for shapes read with `--mesh`.
+    "wax": ((0.9, 0.85, 0.75), (0.4, 0.3, 0.2), 0.45, False),
 }
 # The materials every run of the script renders unless `--scenes` names others.
 DEFAULT_MATERIALS = ("short", "long")
@@ -223,6 +238,55 @@ def normalise(verts):
     return [tuple(x / radius for x in v) for v in moved]
 
 
+PLY_TYPES = {
+    "char": "b", "int8": "b", "uchar": "B", "uint8": "B", "short": "h", "int16": "h",
+    "ushort": "H", "uint16": "H", "int": "i", "int32": "i", "uint": "I", "uint32": "I",
+    "float": "f", "float32": "f", "double": "d", "float64": "d",
+}
+
+
+def read_ply(path):
+    """Vertices and faces of a binary little-endian PLY (the layout Blender and this script write)."""
+    with open(path, "rb") as fh:
+        data = fh.read()
+    end = data.find(b"end_header\n")
+    if not data.startswith(b"ply") or end < 0:
+        sys.exit(f"error: {path}: not a PLY file")
+    header = data[:end].decode("ascii", "replace").splitlines()
+    if "format binary_little_endian 1.0" not in header:
+        sys.exit(f"error: {path}: only binary little-endian PLY is read")
+    elements = []
+    for line in header:
+        words = line.split()
+        if words[:1] == ["element"]:
+            elements.append((words[1], int(words[2]), []))
+        elif words[:1] == ["property"]:
+            elements[-1][2].append(words[1:])
+    offset = end + len("end_header\n")
+    verts, faces = [], []
+    for name, count, props in elements:
+        for _ in range(count):
+            row = {}
+            for prop in props:
+                if prop[0] == "list":
+                    (n,) = struct.unpack_from("<" + PLY_TYPES[prop[1]], data, offset)
+                    offset += struct.calcsize(PLY_TYPES[prop[1]])
+                    fmt = "<" + PLY_TYPES[prop[2]] * n
+                    row[prop[3]] = struct.unpack_from(fmt, data, offset)
+                    offset += struct.calcsize(fmt)
+                else:
+                    fmt = "<" + PLY_TYPES[prop[0]]
+                    (row[prop[1]],) = struct.unpack_from(fmt, data, offset)
+                    offset += struct.calcsize(fmt)
+            if name == "vertex":
+                verts.append((row["x"], row["y"], row["z"]))
+            elif name == "face":
+                faces.append(tuple(row.get("vertex_indices", row.get("vertex_index", ()))))
+    if not verts or not faces:
+        sys.exit(f"error: {path}: no vertices or no faces")
+    return verts, faces
+
+
 def write_ply(path, verts, faces):
     """Binary little-endian PLY, triangles only, written atomically."""
     tris = []
@@ -263,7 +327,7 @@ def look_at_origin(eye):
 
 
 # ---------------------------------------------------------------- scene
-def build_scene(verts, faces, material, samples, resolution):
+def build_scene(verts, faces, material, samples, resolution, light):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
@@ -282,10 +346,15 @@ def build_scene(verts, faces, material, samples, resolution):
     scene.view_settings.view_transform = "Standard"
     scene.view_settings.look = "None"
 
-    world = bpy.data.worlds.new("black")
+    world = bpy.data.worlds.new("world")
     world.use_nodes = True
-    world.node_tree.nodes["Background"].inputs["Color"].default_value = (0, 0, 0, 1)
-    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
+    background = world.node_tree.nodes["Background"]
+    if light == "studio":
+        background.inputs["Color"].default_value = (WORLD_GREY, WORLD_GREY, WORLD_GREY, 1)
+        background.inputs["Strength"].default_value = WORLD_STRENGTH
+    else:
+        background.inputs["Color"].default_value = (0, 0, 0, 1)
+        background.inputs["Strength"].default_value = 0.0
     scene.world = world
 
     mesh = bpy.data.meshes.new("object")
@@ -331,12 +400,22 @@ def build_scene(verts, faces, material, samples, resolution):
     scene.collection.objects.link(cam)
     scene.camera = cam
 
-    light_data = bpy.data.lights.new("flash", type="POINT")
-    light_data.energy = LIGHT_WATTS
-    light_data.shadow_soft_size = 0.0
-    light = bpy.data.objects.new("flash", light_data)
-    scene.collection.objects.link(light)
-    light.parent = cam
+    if light == "studio":
+        sun_data = bpy.data.lights.new("sun", type="SUN")
+        sun_data.energy = SUN_STRENGTH
+        sun_data.angle = math.radians(2.0)
+        sun = bpy.data.objects.new("sun", sun_data)
+        # A sun shines along its local -z: turn +z towards the sun.
+        toward = Vector(SUN_DIRECTION).normalized()
+        sun.matrix_world = Vector((0.0, 0.0, 1.0)).rotation_difference(toward).to_matrix().to_4x4()
+        scene.collection.objects.link(sun)
+    else:
+        light_data = bpy.data.lights.new("flash", type="POINT")
+        light_data.energy = LIGHT_WATTS
+        light_data.shadow_soft_size = 0.0
+        flash = bpy.data.objects.new("flash", light_data)
+        scene.collection.objects.link(flash)
+        flash.parent = cam
     return scene, cam
 
 
@@ -370,27 +449,43 @@ def main():
         default=",".join(default),
         help="comma-separated; default: every shape in the short and long materials",
     )
+    parser.add_argument("--light", choices=("flash", "studio"), default="flash")
+    parser.add_argument(
+        "--mesh",
+        action="append",
+        default=[],
+        metavar="NAME=PLY",
+        help="add a shape read from a watertight PLY (binary little-endian)",
+    )
     parser.add_argument("--samples", type=int, default=128)
     parser.add_argument("--resolution", type=int, default=256)
     parser.add_argument("--train", type=int, default=80)
     parser.add_argument("--test", type=int, default=16)
     args = parser.parse_args(argv)
 
+    shapes = dict(SHAPES)
+    for item in args.mesh:
+        shape, _, path = item.partition("=")
+        if not shape or not path or "_" in shape:
+            sys.exit(f"error: --mesh '{item}': expected NAME=PLY with a NAME without '_'")
+        shapes[shape] = lambda path=path: read_ply(path)
+    names += [f"{s}_{m}" for s in shapes if s not in SHAPES for m in MATERIALS]
     wanted = [s for s in args.scenes.split(",") if s]
     for name in wanted:
         if name not in names:
             sys.exit(f"error: unknown scene '{name}' (known: {', '.join(names)})")
     for name in wanted:
         shape, material = name.rsplit("_", 1)
-        folder = os.path.join(os.path.abspath(args.out), name)
+        suffix = "_studio" if args.light == "studio" else ""
+        folder = os.path.join(os.path.abspath(args.out), name + suffix)
         os.makedirs(folder, exist_ok=True)
-        verts, faces = SHAPES[shape]()
+        verts, faces = shapes[shape]()
         verts = normalise(verts)
         write_ply(os.path.join(folder, "mesh.ply"), verts, faces)
-        scene, cam = build_scene(verts, faces, material, args.samples, args.resolution)
+        scene, cam = build_scene(verts, faces, material, args.samples, args.resolution, args.light)
         render_split(scene, cam, folder, "train", fibonacci_eyes(args.train, 0.0))
         render_split(scene, cam, folder, "test", fibonacci_eyes(args.test, 1.234))
-        print(f"scene {name}: {folder}", flush=True)
+        print(f"scene {name}{suffix}: {folder}", flush=True)
 
 
 main()

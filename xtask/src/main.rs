@@ -1,6 +1,7 @@
 //! Project tasks: `cargo xtask <command>`.
 
 mod bench_recon;
+mod exposure;
 mod gen_scene;
 mod stability;
 
@@ -25,6 +26,9 @@ enum Cmd {
     /// PGSR-like baseline (via gtsr-train), plus the masks alone at the dataset's resolution; write a markdown table
     /// and one combined error-against-time plot.
     BenchRecon(bench_recon::BenchReconArgs),
+    /// Copy a scene with each view's exposure changed by up to a given number of stops, as a
+    /// phone's auto exposure does (the stops drawn go to `exposures.json`).
+    Exposure(exposure::ExposureArgs),
 }
 
 fn main() {
@@ -39,5 +43,6 @@ fn run(command: Cmd) -> anyhow::Result<()> {
         Cmd::Stability => stability::run(),
         Cmd::GenScene(args) => gen_scene::run(&args),
         Cmd::BenchRecon(args) => bench_recon::run(&args),
+        Cmd::Exposure(args) => exposure::run(&args),
     }
 }

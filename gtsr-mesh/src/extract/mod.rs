@@ -261,9 +261,11 @@ fn carve_hollow(
         notes.push("hollow search: the masks carry no images".into());
         return Ok(());
     }
-    let same = inputs.views.len() == masks.views.len()
-        && (inputs.views.iter().zip(&masks.views)).all(|(v, (c, _))| v.camera == c);
-    if !same {
+    let native: Vec<&Camera> = masks.views.iter().map(|(c, _)| c).collect();
+    let fusion: Vec<&Camera> = inputs.views.iter().map(|v| v.camera).collect();
+    if native.len() != fusion.len()
+        || (native.iter().zip(&fusion)).any(|(a, b)| a.world_to_camera != b.world_to_camera)
+    {
         notes.push("hollow search: the fusion views are not the masks' views".into());
         return Ok(());
     }
@@ -293,13 +295,33 @@ fn carve_hollow(
         ));
         return Ok(());
     };
+    // The dark pixels in the fusion views (the masks' own where the two are the same size),
+    // put `depth` of the masks' footprints behind the lid.
     let caster = MeshRaycaster::new(&masks.mesh, "the masks' mesh")?;
-    let cameras: Vec<&Camera> = masks.views.iter().map(|(c, _)| c).collect();
-    let lid: Vec<Vec<f32>> = cameras.iter().map(|c| caster.render(c).depth).collect();
-    let moved = crate::hollow::hollow_depths(&lid, &reading.dark, &cameras, depth);
-    for ((map, d), m) in maps.iter_mut().zip(&reading.dark).zip(&moved) {
-        for p in (0..map.len()).filter(|&p| d[p] && m[p] > 0.0) {
-            map[p] = m[p];
+    let lid: Vec<Vec<f32>> = fusion.iter().map(|c| caster.render(c).depth).collect();
+    let Some(carried) = crate::hollow::dark_in_views(&reading.dark, &native, &fusion) else {
+        notes.push("hollow search: the fusion views are not the masks' views".into());
+        return Ok(());
+    };
+    for ((((map, d), l), a), b) in maps
+        .iter_mut()
+        .zip(&carried)
+        .zip(&lid)
+        .zip(&native)
+        .zip(&fusion)
+    {
+        let moved = crate::hollow::hollow_depths(
+            std::slice::from_ref(l),
+            std::slice::from_ref(d),
+            &[b],
+            if a.fx == b.fx {
+                depth
+            } else {
+                depth * b.fx / a.fx
+            },
+        );
+        for p in (0..map.len()).filter(|&p| d[p] && moved[0][p] > 0.0) {
+            map[p] = moved[0][p];
         }
     }
     let lid_row = reading.candidates[0];

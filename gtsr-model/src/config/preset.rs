@@ -89,8 +89,9 @@ pub struct SceneEvidence {
     pub colocated_light: Option<bool>,
     /// `Some(true)` when metadata says the material is opaque (no subsurface scattering).
     pub opaque: Option<bool>,
-    /// Mean background brightness (pixels whose mask is below 0.5), when masks exist.
-    pub background_level: Option<f32>,
+    /// Whether the images' shading follows the camera ([`gtsr_data::light::light_evidence`]),
+    /// when every training view has a mask and enough of the masks' hull is seen.
+    pub light: Option<gtsr_data::light::LightEvidence>,
     /// Number of training views (the multi-view term needs neighbours).
     pub train_views: usize,
     /// Views that have at least one neighbour within the multi-view angle.
@@ -120,7 +121,7 @@ pub fn auto_components(e: &SceneEvidence) -> (Components, Vec<Decision>) {
             reason,
         })
     };
-    match (e.colocated_light, e.background_level) {
+    match (e.colocated_light, &e.light) {
         (Some(true), _) => say("pbr", true, "metadata: point light at the camera".into()),
         (Some(false), _) => {
             c.pbr = false;
@@ -130,20 +131,22 @@ pub fn auto_components(e: &SceneEvidence) -> (Components, Vec<Decision>) {
                 "metadata: the light is not co-located with the camera, so the PBR model does not apply".into(),
             )
         }
-        (None, Some(level)) if level <= 0.02 => say(
+        (None, Some(light)) if light.follows_camera() => say(
             "pbr",
             true,
             format!(
-                "no light metadata; background level {level:.3} is black, consistent with a flash in the dark"
+                "the images' shading follows the camera, as a light at the camera makes it: {}",
+                light.describe()
             ),
         ),
-        (None, Some(level)) => {
+        (None, Some(light)) => {
             c.pbr = false;
             say(
                 "pbr",
                 false,
                 format!(
-                    "no light metadata; background level {level:.3} shows ambient light, so a co-located light cannot be assumed"
+                    "the images' shading does not follow the camera, so the light is not at the camera and the PBR model does not apply: {}",
+                    light.describe()
                 ),
             )
         }
@@ -152,7 +155,7 @@ pub fn auto_components(e: &SceneEvidence) -> (Components, Vec<Decision>) {
             say(
                 "pbr",
                 false,
-                "no light metadata and no masks to check for a dark background".into(),
+                "no light metadata, and the images cannot tell where the light is (it needs a mask on every training view and enough of the masks' hull seen)".into(),
             )
         }
     }

@@ -259,19 +259,45 @@ fn auto_leaves_out_what_the_scene_does_not_need_and_says_why() {
     let opaque = SceneEvidence {
         colocated_light: None,
         opaque: Some(true),
-        background_level: Some(0.3),
+        light: Some(gtsr_data::light::LightEvidence {
+            points: 900,
+            views_per_point: 20,
+            facing_correlation: 0.05,
+            share_following: 0.1,
+            facing_exponent: 0.02,
+        }),
         train_views: 10,
         views_with_neighbours: 10,
     };
     let (c, decisions) = auto_components(&opaque);
     assert!(!c.pbr && !c.interior && !c.fresnel && !c.smoothness && c.multi_view);
     let pbr = decisions.iter().find(|d| d.component == "pbr").unwrap();
-    assert!(!pbr.enabled && pbr.reason.contains("ambient"), "{pbr:?}");
+    assert!(
+        !pbr.enabled && pbr.reason.contains("does not follow the camera"),
+        "{pbr:?}"
+    );
     assert!(
         decisions
             .iter()
             .any(|d| d.component == "interior" && d.reason.contains("opaque"))
     );
+    let flash = SceneEvidence {
+        opaque: None,
+        light: Some(gtsr_data::light::LightEvidence {
+            facing_correlation: 0.8,
+            share_following: 0.9,
+            ..opaque.light.clone().unwrap()
+        }),
+        ..opaque.clone()
+    };
+    let (c, decisions) = auto_components(&flash);
+    assert!(c.pbr && c.smoothness && c.interior, "{decisions:?}");
+    let none = SceneEvidence {
+        light: None,
+        ..flash
+    };
+    let (c, _) = auto_components(&none);
+    assert!(!c.pbr && !c.smoothness);
 }
 
 /// The initial points of `init` on the tiny sphere scene, and how many were asked for.
