@@ -233,6 +233,8 @@ struct Observation {
     log_bright: f32,
     /// Cosine between the point's normal and the direction to the camera.
     facing: f32,
+    /// Its natural log, as the exposure fit reads it.
+    log_facing: f64,
 }
 
 /// What [`read_views`] reads from the images: the light, and each view's exposure.
@@ -352,6 +354,7 @@ pub fn read_views(views: &[&View], s: &LightSettings) -> Option<Reading> {
                         view,
                         log_bright: (sum / 27.0).ln(),
                         facing: cos,
+                        log_facing: f64::from(cos).ln(),
                     });
                 }
             }
@@ -410,16 +413,14 @@ fn fit_exposure(points: &[Vec<Observation>], views: usize) -> (Vec<f32>, f32) {
         for (l, obs) in level.iter_mut().zip(points) {
             *l = obs
                 .iter()
-                .map(|o| {
-                    f64::from(o.log_bright) - gain[o.view] - exponent * f64::from(o.facing).ln()
-                })
+                .map(|o| f64::from(o.log_bright) - gain[o.view] - exponent * o.log_facing)
                 .sum::<f64>()
                 / obs.len() as f64;
         }
         let (mut sum, mut count) = (vec![0.0f64; views], vec![0usize; views]);
         for (l, obs) in level.iter().zip(points) {
             for o in obs {
-                sum[o.view] += f64::from(o.log_bright) - l - exponent * f64::from(o.facing).ln();
+                sum[o.view] += f64::from(o.log_bright) - l - exponent * o.log_facing;
                 count[o.view] += 1;
             }
         }
@@ -440,14 +441,14 @@ fn fit_exposure(points: &[Vec<Observation>], views: usize) -> (Vec<f32>, f32) {
         // The exponent: regression of what is left on ln(facing) about each point's mean.
         let (mut sxy, mut sxx) = (0.0f64, 0.0f64);
         for obs in points {
-            let mx = obs.iter().map(|o| f64::from(o.facing).ln()).sum::<f64>() / obs.len() as f64;
+            let mx = obs.iter().map(|o| o.log_facing).sum::<f64>() / obs.len() as f64;
             let my = obs
                 .iter()
                 .map(|o| f64::from(o.log_bright) - gain[o.view])
                 .sum::<f64>()
                 / obs.len() as f64;
             for o in obs {
-                let x = f64::from(o.facing).ln() - mx;
+                let x = o.log_facing - mx;
                 sxy += x * (f64::from(o.log_bright) - gain[o.view] - my);
                 sxx += x * x;
             }

@@ -386,7 +386,8 @@ pub fn hollow_mesh(
 }
 
 /// Per view, the depth maps `lid_depths` with each dark pixel's depth put `depth` footprints
-/// behind the lid: the carving's input where the images read a hollow.
+/// of that view's camera in `cameras` behind the lid (the maps may be of the same pose at
+/// another size): the carving's input where the images read a hollow.
 pub fn hollow_depths(
     lid_depths: &[Vec<f32>],
     dark: &[Vec<bool>],
@@ -413,19 +414,10 @@ pub fn hollow_depths(
 /// same poses at another size (the training views beside the masks' native ones): a pixel of
 /// `to` is dark where the centre of a dark pixel of `from` falls in it, or where its own
 /// centre falls in a dark pixel of `from` (so that a coarser view takes every dark pixel and
-/// a finer one covers them whole). `None` when the views differ in number or pose.
-pub fn dark_in_views(
-    dark: &[Vec<bool>],
-    from: &[&Camera],
-    to: &[&Camera],
-) -> Option<Vec<Vec<bool>>> {
-    if dark.len() != from.len() || from.len() != to.len() {
-        return None;
-    }
-    if (from.iter().zip(to)).any(|(a, b)| a.world_to_camera != b.world_to_camera) {
-        return None;
-    }
-    let carried = (dark.iter().zip(from).zip(to))
+/// a finer one covers them whole). The views are taken in order ([`same_poses`] tells whether
+/// they match).
+pub fn dark_in_views(dark: &[Vec<bool>], from: &[&Camera], to: &[&Camera]) -> Vec<Vec<bool>> {
+    (dark.iter().zip(from).zip(to))
         .map(|((d, a), b)| {
             let (aw, ah) = (a.width as usize, a.height as usize);
             let (bw, bh) = (b.width as usize, b.height as usize);
@@ -457,8 +449,12 @@ pub fn dark_in_views(
             }
             out
         })
-        .collect();
-    Some(carried)
+        .collect()
+}
+
+/// Whether the two lists hold the same views (in number and pose), at any size.
+pub fn same_poses(a: &[&Camera], b: &[&Camera]) -> bool {
+    a.len() == b.len() && (a.iter().zip(b)).all(|(x, y)| x.world_to_camera == y.world_to_camera)
 }
 
 /// A Blender-style random-walk material: base colour (turned into a single-scattering albedo
@@ -686,19 +682,20 @@ mod tests {
         }
         let coarse = native.downscaled(2);
         let fine = Camera::look_at(2.0 * Vec3::X, Vec3::ZERO, Vec3::Z, 0.7, 48, 48);
-        let same = dark_in_views(std::slice::from_ref(&dark), &[&native], &[&native]).unwrap();
+        let same = dark_in_views(std::slice::from_ref(&dark), &[&native], &[&native]);
         assert_eq!(same[0], dark);
-        let c = dark_in_views(std::slice::from_ref(&dark), &[&native], &[&coarse]).unwrap();
+        let c = dark_in_views(std::slice::from_ref(&dark), &[&native], &[&coarse]);
         let lit: Vec<usize> = (0..c[0].len()).filter(|&q| c[0][q]).collect();
         assert_eq!(
             lit,
             vec![12 + 10, 5 * 12 + 5, 5 * 12 + 6, 6 * 12 + 5, 6 * 12 + 6]
         );
-        let f = dark_in_views(std::slice::from_ref(&dark), &[&native], &[&fine]).unwrap();
+        let f = dark_in_views(std::slice::from_ref(&dark), &[&native], &[&fine]);
         assert_eq!(f[0].iter().filter(|x| **x).count(), 4 * 5);
         assert!(f[0][22 * 48 + 22] && f[0][25 * 48 + 25] && f[0][7 * 48 + 41]);
         let moved = Camera::look_at(2.0 * Vec3::Y, Vec3::ZERO, Vec3::Z, 0.7, 24, 24);
-        assert!(dark_in_views(&[dark], &[&native], &[&moved]).is_none());
+        assert!(same_poses(&[&native], &[&coarse]) && same_poses(&[&native], &[&fine]));
+        assert!(!same_poses(&[&native], &[&moved]) && !same_poses(&[&native], &[]));
     }
 
     /// Six views of a sphere: cameras, masks (its coverage) and a uniform radiance.

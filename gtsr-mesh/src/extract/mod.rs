@@ -263,9 +263,7 @@ fn carve_hollow(
     }
     let native: Vec<&Camera> = masks.views.iter().map(|(c, _)| c).collect();
     let fusion: Vec<&Camera> = inputs.views.iter().map(|v| v.camera).collect();
-    if native.len() != fusion.len()
-        || (native.iter().zip(&fusion)).any(|(a, b)| a.world_to_camera != b.world_to_camera)
-    {
+    if !crate::hollow::same_poses(&native, &fusion) {
         notes.push("hollow search: the fusion views are not the masks' views".into());
         return Ok(());
     }
@@ -299,29 +297,11 @@ fn carve_hollow(
     // put `depth` of the masks' footprints behind the lid.
     let caster = MeshRaycaster::new(&masks.mesh, "the masks' mesh")?;
     let lid: Vec<Vec<f32>> = fusion.iter().map(|c| caster.render(c).depth).collect();
-    let Some(carried) = crate::hollow::dark_in_views(&reading.dark, &native, &fusion) else {
-        notes.push("hollow search: the fusion views are not the masks' views".into());
-        return Ok(());
-    };
-    for ((((map, d), l), a), b) in maps
-        .iter_mut()
-        .zip(&carried)
-        .zip(&lid)
-        .zip(&native)
-        .zip(&fusion)
-    {
-        let moved = crate::hollow::hollow_depths(
-            std::slice::from_ref(l),
-            std::slice::from_ref(d),
-            &[b],
-            if a.fx == b.fx {
-                depth
-            } else {
-                depth * b.fx / a.fx
-            },
-        );
-        for p in (0..map.len()).filter(|&p| d[p] && moved[0][p] > 0.0) {
-            map[p] = moved[0][p];
+    let carried = crate::hollow::dark_in_views(&reading.dark, &native, &fusion);
+    let moved = crate::hollow::hollow_depths(&lid, &carried, &native, depth);
+    for ((map, d), m) in maps.iter_mut().zip(&carried).zip(&moved) {
+        for p in (0..map.len()).filter(|&p| d[p] && m[p] > 0.0) {
+            map[p] = m[p];
         }
     }
     let lid_row = reading.candidates[0];
