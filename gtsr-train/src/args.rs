@@ -78,6 +78,12 @@ pub struct Args {
     /// (`mesh.shading_radiance_rendered`) the curve's chamfer follows the training.
     #[arg(long, default_value_t = DEFAULT_EVAL_SHADING_ROUNDS)]
     pub eval_shading_rounds: usize,
+    /// Run the evaluations along the run beside the training, each on a snapshot of the model,
+    /// on the cores the training leaves idle (its threads yield to the training's). `false`:
+    /// in turn with the training, one evaluation's working set less in memory at once, as
+    /// `--profile` does so that its step timers see the training alone.
+    #[arg(long, value_name = "BOOL", default_value_t = true, action = clap::ArgAction::Set)]
+    pub eval_beside_training: bool,
     /// Time every step by phase (kernels, Burn ops, Adam, densification) and print the mean
     /// per stage at the end (also written to `profile.md` in `--out`).
     #[arg(long)]

@@ -12,10 +12,43 @@ use gtsr_eval::{
 };
 use gtsr_mesh::raycast::MeshRaycaster;
 use gtsr_model::gaussians::host_vec;
-use gtsr_model::model::Model;
+use gtsr_model::model::{Model, RenderOptions};
 use gtsr_model::readout::rendered_image;
 use gtsr_model::trainer::Trainer;
 use gtsr_model::views::ViewTensors;
+
+/// What an evaluation and the mesh extraction read of a trainer at one step: the model
+/// (detached from the training's graph), the training views, the render options of the step
+/// and the step itself. It owns what it holds, so an evaluation can run beside the training
+/// while the trainer steps on (the tensors are shared, not copied, until the training
+/// replaces them).
+#[derive(Clone, Debug)]
+pub struct Snapshot {
+    /// The model at the step, detached.
+    pub model: Model,
+    /// The training views as trained at the step.
+    pub views: Vec<ViewTensors>,
+    /// The render options of the step, without the training's offset tracking.
+    pub options: RenderOptions,
+    /// Steps done.
+    pub step: usize,
+    /// Whether the last step done was in stage 2 (the model has its geometry and C_PBR).
+    pub stage2: bool,
+}
+
+impl Snapshot {
+    /// The trainer as it stands.
+    pub fn of(trainer: &Trainer) -> Snapshot {
+        let step = trainer.steps_done();
+        Snapshot {
+            model: trainer.model().detached(),
+            views: trainer.views().to_vec(),
+            options: trainer.render_options(step, false),
+            step,
+            stage2: trainer.is_stage2(step.saturating_sub(1)),
+        }
+    }
+}
 
 /// The masks' mesh of `masks` against the ground truth `gt` that the training cameras see, split
 /// by the part it misses (the scene's masks alone, with a ground truth).
@@ -69,19 +102,19 @@ pub struct Evaluation {
 }
 
 impl Evaluation {
-    /// The evaluation as a point of the error-against-time log, at the trainer's step.
+    /// The evaluation as a point of the error-against-time log, at the snapshot's step.
     pub fn timeline_point(
         &self,
-        trainer: &Trainer,
+        at: &Snapshot,
         train_seconds: f64,
         label: &str,
     ) -> gtsr_eval::TimelinePoint {
-        let (ns, ni) = trainer.model().counts();
+        let (ns, ni) = at.model.counts();
         // The split only where the ground truth has a hull-blind part.
         let split = |m: &Option<MeshMetrics>| m.as_ref()?.hull_blind.filter(|b| b.fraction > 0.0);
         let (mesh, masks) = (split(&self.mesh), split(&self.masks_alone));
         gtsr_eval::TimelinePoint {
-            iteration: trainer.steps_done() as u64,
+            iteration: at.step as u64,
             train_seconds,
             psnr: self.psnr,
             ssim: self.ssim,
@@ -105,7 +138,7 @@ impl Evaluation {
 /// `coarse` (the in-run evaluations): the TSDF fusion on a coarser grid, and the chamfer
 /// against the seen ground truth only.
 pub fn evaluate(
-    trainer: &Trainer,
+    at: &Snapshot,
     tests: &[ViewTensors],
     scene: &Scene,
     gt: Option<&TriMesh>,
@@ -113,8 +146,7 @@ pub fn evaluate(
     coarse: bool,
 ) -> Result<Evaluation> {
     let t0 = Instant::now();
-    let model = trainer.model().detached();
-    let opts = trainer.render_options(trainer.steps_done(), false);
+    let (model, opts) = (&at.model, at.options);
     let (mut p, mut s, mut pm, mut pp, mut n, mut nm, mut np) =
         (0.0, 0.0, 0.0, 0.0, 0usize, 0usize, 0usize);
     for (v, data) in tests.iter().zip(&scene.test) {
@@ -139,8 +171,8 @@ pub fn evaluate(
         }
     }
     let (mesh, mesh_whole_gt, depth_only, extracted) = match gt {
-        Some(gt) if trainer.is_stage2(trainer.steps_done().saturating_sub(1)) => {
-            let (m, alone) = extract_meshes(trainer, scene, settings, coarse, true)?;
+        Some(gt) if at.stage2 => {
+            let (m, alone) = extract_meshes(at, scene, settings, coarse, true)?;
             let hull = settings.masks.as_ref().map(|m| &m.mesh);
             let cameras = training_cameras(scene);
             let depth_only = match alone {
@@ -160,7 +192,7 @@ pub fn evaluate(
         _ => (None, None, None, None),
     };
     let (depth, depth_area) = match gt {
-        Some(gt) => test_view_geometry(&model, tests, scene, gt, settings, !coarse)?,
+        Some(gt) => test_view_geometry(model, tests, scene, gt, settings, !coarse)?,
         _ => (None, None),
     };
     let avg = |x: f64, k: usize| if k > 0 { Some(x / k as f64) } else { None };

@@ -3,6 +3,7 @@
 
 use std::time::Instant;
 
+use crate::evaluation::Snapshot;
 use anyhow::{Context, Result};
 use glam::Vec3;
 use gtsr_data::Scene;
@@ -12,7 +13,6 @@ use gtsr_mesh::{OUTLINE_GAP_FOOTPRINTS, PlaneReadout};
 use gtsr_model::geometry::pixel_rays;
 use gtsr_model::model::Model;
 use gtsr_model::readout::{HostGeometry, PlaneBlur, Readout, ReadoutSettings, rendered_image};
-use gtsr_model::trainer::Trainer;
 use gtsr_model::views::kernel_camera;
 
 /// Mesh extraction: the settings and what the scene gives them.
@@ -110,12 +110,12 @@ pub(crate) fn readout(model: &Model, settings: &MeshSettings) -> Readout {
 /// gtsr-mesh's recipe ([`gtsr_mesh::extract_mesh`]: with masks and carving the native masks
 /// carved by the depth, otherwise a TSDF). The notes of the recipe are printed unless `coarse`.
 pub fn extract_mesh(
-    trainer: &Trainer,
+    at: &Snapshot,
     scene: &Scene,
     settings: &MeshSettings,
     coarse: bool,
 ) -> Result<TriMesh> {
-    Ok(extract_meshes(trainer, scene, settings, coarse, false)?.0)
+    Ok(extract_meshes(at, scene, settings, coarse, false)?.0)
 }
 
 /// Whether the extraction under `config` uses the masks (so that the depth alone gives
@@ -127,13 +127,13 @@ pub(crate) fn uses_masks(config: &gtsr_mesh::MeshConfig, masked: bool) -> bool {
 /// [`extract_mesh`], and with `depth_only` where the extraction uses the masks, the mesh
 /// fused from the same depth maps alone ([`gtsr_mesh::MeshConfig::depth_only`]).
 pub(crate) fn extract_meshes(
-    trainer: &Trainer,
+    at: &Snapshot,
     scene: &Scene,
     settings: &MeshSettings,
     coarse: bool,
     depth_only: bool,
 ) -> Result<(TriMesh, Option<TriMesh>)> {
-    let readout = readout(trainer.model(), settings);
+    let readout = readout(&at.model, settings);
     let host_views: Vec<&gtsr_data::View> = if settings.fusion_views.is_empty() {
         scene.train.iter().collect()
     } else {
@@ -154,7 +154,7 @@ pub(crate) fn extract_meshes(
         .enumerate()
         .map(|(k, data)| {
             if settings.config.fuse_depth {
-                fusion_depth(trainer, &readout, k, data, settings)
+                fusion_depth(at, &readout, k, data, settings)
             } else {
                 let mask = data
                     .mask
@@ -175,15 +175,13 @@ pub(crate) fn extract_meshes(
         })
         .collect();
     let cameras = training_cameras(scene);
-    let blended = masks_with_rendered_radiance(trainer, scene, settings, config, coarse)?;
+    let blended = masks_with_rendered_radiance(at, scene, settings, config, coarse)?;
     let inputs = gtsr_mesh::FusionInputs {
         views: &views,
         masked,
         masks: blended.as_ref().or(settings.masks.as_ref()),
         footprint_cameras: &cameras,
-        bounds: settings
-            .bounds
-            .unwrap_or_else(|| mesh_bounds(trainer.model())),
+        bounds: settings.bounds.unwrap_or_else(|| mesh_bounds(&at.model)),
         coarse,
     };
     let (mesh, notes) = gtsr_mesh::extract_mesh(config, &inputs)?;
@@ -216,7 +214,7 @@ pub(crate) fn extract_meshes(
 /// not run (no images, no carving, no anchor) or the views are not the masks' views. What it
 /// did is printed unless `coarse`.
 pub(crate) fn masks_with_rendered_radiance(
-    trainer: &Trainer,
+    at: &Snapshot,
     scene: &Scene,
     settings: &MeshSettings,
     config: &gtsr_mesh::MeshConfig,
@@ -230,7 +228,7 @@ pub(crate) fn masks_with_rendered_radiance(
     if share <= 0.0 || !carving || config.shading_anchor <= 0.0 {
         return Ok(None);
     }
-    let views = trainer.views();
+    let views = &at.views;
     let same_views = views.len() == masks.views.len()
         && (scene.train.iter().zip(&masks.views))
             .all(|(data, (c, _))| data.camera.world_to_camera == c.world_to_camera);
@@ -244,11 +242,11 @@ pub(crate) fn masks_with_rendered_radiance(
         return Ok(None);
     }
     let t0 = Instant::now();
-    let model = trainer.model().detached();
+    let model = &at.model;
     // C_SH alone: neither the geometry maps nor C_PBR, which it does not depend on.
     let opts = gtsr_model::model::RenderOptions {
         geometry: false,
-        ..trainer.render_options(trainer.steps_done(), false)
+        ..at.options
     };
     let mut resized = 0;
     let rendered = (views.iter().zip(&scene.train).zip(&masks.views))
@@ -291,21 +289,21 @@ pub(crate) fn masks_with_rendered_radiance(
 
 /// One fusion view's depth map as fused (zero where not fused; [`gtsr_mesh::prepare_depth`]),
 /// its mask (without masks, the coverage at least 0.5) and its rendered camera-space normals
-/// (premultiplied by the coverage). `k` indexes the trainer's views when
+/// (premultiplied by the coverage). `k` indexes the snapshot's views when
 /// [`MeshSettings::fusion_views`] is empty.
 pub(crate) fn fusion_depth(
-    trainer: &Trainer,
+    at: &Snapshot,
     readout: &Readout,
     k: usize,
     data: &gtsr_data::View,
     settings: &MeshSettings,
 ) -> Result<(Vec<f32>, Vec<f32>, Vec<f32>)> {
-    let trained = &trainer.views()[k];
+    let trained = &at.views[k];
     let same_size = trained.size() == (data.camera.width as usize, data.camera.height as usize);
     let g = if settings.fusion_views.is_empty() && same_size {
         readout.host_geometry(&trained.camera, &trained.rays)?
     } else {
-        let device = trainer.views()[0].rays.device();
+        let device = at.views[0].rays.device();
         let camera = kernel_camera(&data.camera, &data.name)?;
         readout.host_geometry(&camera, &pixel_rays(&camera, &device))?
     };

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use crate::evaluation::{AREA_RAYS, evaluate};
+use crate::evaluation::{AREA_RAYS, Snapshot, evaluate};
 use crate::mesh::{MeshSettings, extract_mesh};
 use anyhow::{Context, Result};
 use gtsr_data::Scene;
@@ -139,10 +139,11 @@ pub fn finish(
     out: &Path,
 ) -> Result<()> {
     println!("final evaluation and mesh extraction...");
-    let e = evaluate(trainer, tests, scene, gt, settings, false)?;
+    let at = Snapshot::of(trainer);
+    let e = evaluate(&at, tests, scene, gt, settings, false)?;
     let mesh = match e.extracted.clone() {
         Some(m) => m,
-        None => extract_mesh(trainer, scene, settings, false)?,
+        None => extract_mesh(&at, scene, settings, false)?,
     };
     let mesh_path = out.join("mesh.ply");
     // Metrics are taken in the trained frame (above); the file is in the dataset's.
@@ -188,7 +189,7 @@ pub fn finish(
     // The curve's last point is the mesh as written (the evaluations during training take
     // the quicker extraction).
     let mut timeline = timeline.clone();
-    timeline.set_final(e.timeline_point(trainer, train_seconds, gtsr_eval::FINAL_LABEL));
+    timeline.set_final(e.timeline_point(&at, train_seconds, gtsr_eval::FINAL_LABEL));
     let csv = out.join("error_vs_time.csv");
     timeline
         .write_csv(&csv)

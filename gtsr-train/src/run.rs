@@ -15,7 +15,7 @@ use gtsr_model::views::upload_views;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::args::{Args, Backend, ExposureMode};
-use crate::evaluation::{Evaluation, evaluate, score_masks_alone};
+use crate::evaluation::{Evaluation, Snapshot, evaluate, score_masks_alone};
 use crate::mesh::{MeshSettings, hull_bounds};
 use crate::outputs::{finish, write_json, write_splats};
 use crate::prepare::{
@@ -50,7 +50,9 @@ pub enum RunEvent<'a> {
         /// Training seconds so far (the evaluations not counted).
         train_seconds: f64,
     },
-    /// An evaluation along the run finished (also written to `error_vs_time.csv`).
+    /// An evaluation along the run finished (also written to `error_vs_time.csv`). It runs
+    /// beside the training on a snapshot of the step it names, so it is reported after later
+    /// steps (at the latest before the next evaluation starts and before the end).
     Evaluation {
         /// The step it evaluated.
         step: usize,
@@ -75,6 +77,7 @@ pub fn run(args: &Args) -> Result<Outcome> {
 
 /// [`run`], telling `observe` of each step, evaluation and checkpoint as they happen.
 pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Outcome> {
+    let started = Instant::now();
     if args.backend == Backend::Wgpu && !cfg!(feature = "wgpu") {
         bail!(
             "--backend wgpu: this gtsr-train was built without its `wgpu` feature; rebuild with the default features or use --backend ndarray"
@@ -424,116 +427,136 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
         scene.train.iter().map(|v| &v.camera),
         centre,
     )));
+    let (loop_started, train_seconds_before) = (Instant::now(), train_seconds);
     // Per stage: summed step times and the number of steps.
     let mut profile = [
         (StepTimes::default(), 0usize),
         (StepTimes::default(), 0usize),
     ];
-    while trainer.steps_done() < stop_at {
-        if stop.load(Ordering::SeqCst) {
-            bar.abandon_with_message("interrupted");
-            println!("Ctrl-C: writing a checkpoint and partial outputs");
-            if args.profile {
-                write_profile(&profile, &trainer, &args.out)?;
+    // The evaluations along the run go to a thread of their own, with a rayon pool as large as
+    // the training's, beside the training and below it: its threads are in the idle scheduling
+    // class ([`yield_to_the_training`]), so they run on the cores the training leaves idle (its
+    // one-thread phases, Burn's element-wise work) and never slow its parallel kernels, which
+    // wait for their slowest thread; while the training waits for an evaluation, the
+    // evaluation has every core. An evaluation reads a snapshot of the model, so it measures
+    // what it would in the foreground, and the training does not wait for it (only for the one
+    // before, if that is still running). With `--eval-beside-training false`, and under
+    // `--profile` (off the step timers), they run in turn with the training.
+    let eval_pool =
+        if !args.eval_beside_training || args.profile || rayon::current_num_threads() < 2 {
+            None
+        } else {
+            Some(
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(rayon::current_num_threads())
+                    .thread_name(|_| "gtsr-eval".into())
+                    .start_handler(|_| yield_to_the_training())
+                    .build()
+                    .context("starting the evaluation thread")?,
+            )
+        };
+    let mut recorder = Recorder {
+        waited: 0.0,
+        evaluated: 0.0,
+        timeline: &mut timeline,
+        timeline_path: &timeline_path,
+        settle: &mut settle,
+        bar: &bar,
+    };
+    let (tests_ref, scene_ref, gt_ref, settings_ref) =
+        (tests.as_slice(), &scene, gt_mesh.as_ref(), &mesh_settings);
+    let interrupted = std::thread::scope(|s| -> Result<bool> {
+        let mut pending: Option<std::thread::ScopedJoinHandle<'_, Background>> = None;
+        while trainer.steps_done() < stop_at {
+            if stop.load(Ordering::SeqCst) {
+                collect(&mut pending, &mut recorder, &mut observe)?;
+                return Ok(true);
             }
-            save_checkpoint(&trainer, &ckpt_path, &state_path, train_seconds)?;
-            timeline.write_csv(&timeline_path)?;
-            write_splats(&trainer, &scene, &args.out)?;
-            println!("checkpoint {}; continue with --resume", ckpt_path.display());
-            return Ok(Outcome::Interrupted);
-        }
-        if trainer.steps_done() >= trainer.config().coarse_until
-            && let Some(views) = full_views.take()
-        {
-            trainer
-                .set_views(views)
-                .context("the full-size training views")?;
-        }
-        let t0 = Instant::now();
-        let r = trainer.step()?;
-        train_seconds += t0.elapsed().as_secs_f64();
-        observe(RunEvent::Step {
-            step: trainer.steps_done(),
-            of: iterations,
-            report: &r,
-            train_seconds,
-        });
-        let slot = &mut profile[usize::from(r.stage == 2)];
-        slot.0 += &r.times;
-        slot.1 += 1;
-        bar.set_position(trainer.steps_done() as u64);
-        bar.set_message(format!(
-            "stage {} loss {:.4} gaussians {}+{}",
-            r.stage, r.loss, r.counts.0, r.counts.1
-        ));
-        if trainer.steps_done() % log_every == 0 && bar.is_hidden() {
-            println!(
-                "step {:6}/{iterations}  stage {}  loss {:.6}  gaussians {}+{}  \
-                 tile-splats/pass {}  {:.1} s",
-                trainer.steps_done(),
-                r.stage,
-                r.loss,
-                r.counts.0,
-                r.counts.1,
-                r.tile_splats / r.passes.max(1) as u64,
-                train_seconds
-            );
-        }
-        if eval_steps.contains(&trainer.steps_done()) {
-            let e = evaluate(
-                &trainer,
-                &tests,
-                &scene,
-                gt_mesh.as_ref(),
-                &mesh_settings,
-                true,
-            )?;
-            let mut point = e.timeline_point(&trainer, train_seconds, "test");
-            if let Some(mesh) = &e.extracted {
-                let change = settle.compare(trainer.steps_done(), mesh)?;
-                point.mesh_change = change.map(|c| c.distance);
-                if let Some(note) = change.map(|c| settle.note(&c)) {
-                    say(&bar, note);
-                }
+            if trainer.steps_done() >= trainer.config().coarse_until
+                && let Some(views) = full_views.take()
+            {
+                trainer
+                    .set_views(views)
+                    .context("the full-size training views")?;
             }
-            timeline.push(point);
-            timeline.write_csv(&timeline_path)?;
-            observe(RunEvent::Evaluation {
+            let t0 = Instant::now();
+            let r = trainer.step()?;
+            train_seconds += t0.elapsed().as_secs_f64();
+            observe(RunEvent::Step {
                 step: trainer.steps_done(),
-                evaluation: &e,
+                of: iterations,
+                report: &r,
                 train_seconds,
             });
-            say(
-                &bar,
-                format!(
-                    "eval @ {:6}: test PSNR {:.2} dB, SSIM {:.4}{}  (train time {:.0} s, eval {:.1} s)",
+            let slot = &mut profile[usize::from(r.stage == 2)];
+            slot.0 += &r.times;
+            slot.1 += 1;
+            bar.set_position(trainer.steps_done() as u64);
+            bar.set_message(format!(
+                "stage {} loss {:.4} gaussians {}+{}",
+                r.stage, r.loss, r.counts.0, r.counts.1
+            ));
+            if trainer.steps_done() % log_every == 0 && bar.is_hidden() {
+                println!(
+                    "step {:6}/{iterations}  stage {}  loss {:.6}  gaussians {}+{}  \
+                     tile-splats/pass {}  {:.1} s",
                     trainer.steps_done(),
-                    e.psnr,
-                    e.ssim,
-                    e.mesh.as_ref().map_or(String::new(), |m| format!(
-                        ", chamfer {:.5} (x1e3: {:.2})",
-                        m.chamfer,
-                        m.chamfer * 1e3
-                    )) + &e.depth_only.as_ref().map_or(String::new(), |m| format!(
-                        ", depth alone x1e3 {:.2}",
-                        m.chamfer * 1e3
-                    )) + &e.depth.as_ref().map_or(String::new(), |d| format!(
-                        ", depth error x1e3 median {:.2} bias {:+.2}",
-                        d.depth_median_abs * 1e3,
-                        d.depth_mean_signed * 1e3
-                    )),
-                    train_seconds,
-                    e.seconds
-                ),
-            );
+                    r.stage,
+                    r.loss,
+                    r.counts.0,
+                    r.counts.1,
+                    r.tile_splats / r.passes.max(1) as u64,
+                    train_seconds
+                );
+            }
+            if eval_steps.contains(&trainer.steps_done()) {
+                let at = Snapshot::of(&trainer);
+                // One evaluation at a time: the one before finishes first.
+                collect(&mut pending, &mut recorder, &mut observe)?;
+                match &eval_pool {
+                    Some(pool) => {
+                        pending = Some(s.spawn(move || {
+                            yield_to_the_training();
+                            let evaluation = pool.install(|| {
+                                evaluate(&at, tests_ref, scene_ref, gt_ref, settings_ref, true)
+                            });
+                            Background {
+                                evaluation,
+                                at,
+                                train_seconds,
+                            }
+                        }));
+                    }
+                    None => {
+                        let e = evaluate(&at, tests_ref, scene_ref, gt_ref, settings_ref, true)?;
+                        recorder.waited += e.seconds;
+                        recorder.record(&e, &at, train_seconds, &mut observe)?;
+                    }
+                }
+            }
+            if args.checkpoint_every > 0 && trainer.steps_done() % args.checkpoint_every == 0 {
+                save_checkpoint(&trainer, &ckpt_path, &state_path, train_seconds)?;
+                observe(RunEvent::Checkpoint {
+                    step: trainer.steps_done(),
+                    path: &ckpt_path,
+                });
+            }
         }
-        if args.checkpoint_every > 0 && trainer.steps_done() % args.checkpoint_every == 0 {
-            save_checkpoint(&trainer, &ckpt_path, &state_path, train_seconds)?;
-            observe(RunEvent::Checkpoint {
-                step: trainer.steps_done(),
-                path: &ckpt_path,
-            });
+        collect(&mut pending, &mut recorder, &mut observe)?;
+        Ok(false)
+    })?;
+    let (waited, evaluated) = (recorder.waited, recorder.evaluated);
+    if interrupted {
+        bar.abandon_with_message("interrupted");
+        println!("Ctrl-C: writing a checkpoint and partial outputs");
+        if args.profile {
+            write_profile(&profile, &trainer, &args.out)?;
         }
+        save_checkpoint(&trainer, &ckpt_path, &state_path, train_seconds)?;
+        timeline.write_csv(&timeline_path)?;
+        write_splats(&trainer, &scene, &args.out)?;
+        println!("checkpoint {}; continue with --resume", ckpt_path.display());
+        return Ok(Outcome::Interrupted);
     }
     bar.finish_and_clear();
     if let Some(since) = settle.settled_since() {
@@ -553,6 +576,8 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
         path: &ckpt_path,
     });
     timeline.write_csv(&timeline_path)?;
+    let loop_seconds = loop_started.elapsed().as_secs_f64();
+    let final_started = Instant::now();
     finish(
         &trainer,
         &tests,
@@ -563,10 +588,127 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
         train_seconds,
         &args.out,
     )?;
+    let wall = started.elapsed().as_secs_f64();
+    let final_seconds = final_started.elapsed().as_secs_f64();
+    println!(
+        "time: {wall:.0} s wall: {:.0} s preparing, {:.0} s training, {waited:.0} s waiting for \
+         the evaluations along the run ({evaluated:.0} s of evaluating, the rest beside the \
+         training), {:.0} s checkpoints and the rest of the loop, {final_seconds:.0} s the final \
+         evaluation and outputs",
+        wall - loop_seconds - final_seconds,
+        train_seconds - train_seconds_before,
+        (loop_seconds - (train_seconds - train_seconds_before) - waited).max(0.0),
+    );
     if stop_at < iterations {
         println!("stopped at step {stop_at} of {iterations} (--stop-at); continue with --resume");
     }
     Ok(Outcome::Finished)
+}
+
+/// What an evaluation in the background hands back: its result, the snapshot it read and
+/// the training seconds at its step.
+struct Background {
+    evaluation: Result<Evaluation>,
+    at: Snapshot,
+    train_seconds: f64,
+}
+
+/// Puts the calling thread in Linux's idle scheduling class (`SCHED_IDLE`): it runs only on a
+/// core that no other thread wants. Elsewhere, or where the call is refused, the thread keeps
+/// its class and shares the cores as usual.
+fn yield_to_the_training() {
+    #[cfg(target_os = "linux")]
+    {
+        let param = libc::sched_param { sched_priority: 0 };
+        // SAFETY: pid 0 names the calling thread; the call only changes its scheduling class
+        // and reads `param`, which outlives it.
+        unsafe {
+            libc::sched_setscheduler(0, libc::SCHED_IDLE, &param);
+        }
+    }
+}
+
+/// Waits for the evaluation in the background, if one is running, and records it.
+fn collect(
+    pending: &mut Option<std::thread::ScopedJoinHandle<'_, Background>>,
+    recorder: &mut Recorder<'_>,
+    observe: &mut dyn FnMut(RunEvent<'_>),
+) -> Result<()> {
+    if let Some(handle) = pending.take() {
+        let t0 = Instant::now();
+        let done = handle
+            .join()
+            .map_err(|_| anyhow::anyhow!("the evaluation thread panicked"))?;
+        recorder.waited += t0.elapsed().as_secs_f64();
+        let e = done.evaluation?;
+        recorder.record(&e, &done.at, done.train_seconds, observe)?;
+    }
+    Ok(())
+}
+
+/// Where the evaluations along the run are recorded: the error-against-time log (written at
+/// each), the settling of the mesh and the progress bar's lines.
+struct Recorder<'a> {
+    /// Seconds the training waited for the evaluations (all of a foreground one's).
+    waited: f64,
+    /// Seconds of evaluation, wherever they ran.
+    evaluated: f64,
+    timeline: &'a mut Timeline,
+    timeline_path: &'a Path,
+    settle: &'a mut Settle,
+    bar: &'a ProgressBar,
+}
+
+impl Recorder<'_> {
+    /// Records the evaluation `e` of the snapshot `at`, and tells `observe`.
+    fn record(
+        &mut self,
+        e: &Evaluation,
+        at: &Snapshot,
+        train_seconds: f64,
+        observe: &mut dyn FnMut(RunEvent<'_>),
+    ) -> Result<()> {
+        self.evaluated += e.seconds;
+        let mut point = e.timeline_point(at, train_seconds, "test");
+        if let Some(mesh) = &e.extracted {
+            let change = self.settle.compare(at.step, mesh)?;
+            point.mesh_change = change.map(|c| c.distance);
+            if let Some(note) = change.map(|c| self.settle.note(&c)) {
+                say(self.bar, note);
+            }
+        }
+        self.timeline.push(point);
+        self.timeline.write_csv(self.timeline_path)?;
+        observe(RunEvent::Evaluation {
+            step: at.step,
+            evaluation: e,
+            train_seconds,
+        });
+        say(
+            self.bar,
+            format!(
+                "eval @ {:6}: test PSNR {:.2} dB, SSIM {:.4}{}  (train time {:.0} s, eval {:.1} s)",
+                at.step,
+                e.psnr,
+                e.ssim,
+                e.mesh.as_ref().map_or(String::new(), |m| format!(
+                    ", chamfer {:.5} (x1e3: {:.2})",
+                    m.chamfer,
+                    m.chamfer * 1e3
+                )) + &e.depth_only.as_ref().map_or(String::new(), |m| format!(
+                    ", depth alone x1e3 {:.2}",
+                    m.chamfer * 1e3
+                )) + &e.depth.as_ref().map_or(String::new(), |d| format!(
+                    ", depth error x1e3 median {:.2} bias {:+.2}",
+                    d.depth_median_abs * 1e3,
+                    d.depth_mean_signed * 1e3
+                )),
+                train_seconds,
+                e.seconds
+            ),
+        );
+        Ok(())
+    }
 }
 
 /// Prints above the progress bar, or plainly when the bar is hidden (not a terminal).

@@ -371,6 +371,67 @@ fn trains_a_tiny_scene_and_writes_every_output() {
     assert!(log.contains("depth consistency (2 of 8"), "{log}");
 }
 
+/// The evaluations along the run go beside the training, on a snapshot of their step: the
+/// curve and the mesh are those of a run that evaluates in turn with the training.
+#[test]
+fn evaluations_beside_the_training_measure_what_the_foreground_does() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("scene");
+    tiny_scene(&scene);
+    let run = |name: &str, extra: &[&str]| {
+        let out = tmp.path().join(name);
+        let o = gtsr_train(
+            &scene,
+            &out,
+            &[
+                &TINY_RUN[..],
+                &["--eval-points", "4", "--checkpoint-every", "0"],
+                extra,
+            ]
+            .concat(),
+        );
+        assert!(o.status.success(), "{}", text(&o));
+        out
+    };
+    let (bg, fg) = (
+        run("background", &[]),
+        run("foreground", &["--eval-beside-training", "false"]),
+    );
+    let curve = |dir: &Path| gtsr_eval::Timeline::read_csv(&dir.join("error_vs_time.csv")).unwrap();
+    let (a, b) = (curve(&bg), curve(&fg));
+    // Four along the run (each with a mesh once stage 2 has begun) and the final one.
+    assert_eq!(a.points.len(), 5, "{a:?}");
+    assert!(
+        a.points.iter().filter(|p| p.chamfer.is_some()).count() >= 3,
+        "{a:?}"
+    );
+    let close = |x: f64, y: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(1e-12);
+    let opt = |x: Option<f64>, y: Option<f64>| match (x, y) {
+        (Some(x), Some(y)) => close(x, y),
+        (None, None) => true,
+        _ => false,
+    };
+    for (p, q) in a.points.iter().zip(&b.points) {
+        assert_eq!(
+            (p.iteration, &p.label, p.gaussians),
+            (q.iteration, &q.label, q.gaussians)
+        );
+        assert!(
+            close(p.psnr, q.psnr)
+                && close(p.ssim, q.ssim)
+                && opt(p.chamfer, q.chamfer)
+                && opt(p.depth_only_chamfer, q.depth_only_chamfer)
+                && opt(p.depth_error, q.depth_error)
+                && opt(p.mesh_change, q.mesh_change),
+            "{p:?}\nagainst\n{q:?}"
+        );
+    }
+    assert_eq!(
+        std::fs::read(bg.join("mesh.ply")).unwrap(),
+        std::fs::read(fg.join("mesh.ply")).unwrap()
+    );
+}
+
 #[test]
 fn bad_input_is_an_error_naming_the_problem() {
     let tmp = tempfile::tempdir().unwrap();
