@@ -49,15 +49,17 @@ pub(crate) fn to_u8(v: f32) -> u8 {
 
 /// PNG strips per test view: ground truth | C_SH | C_PBR | normal | depth.
 pub(crate) fn write_strips(
-    trainer: &Trainer,
+    at: &Snapshot,
     tests: &[ViewTensors],
     scene: &Scene,
     dir: &Path,
 ) -> Result<usize> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let model = trainer.model().detached();
-    let mut opts = trainer.render_options(trainer.steps_done(), false);
-    opts.geometry = true;
+    let model = &at.model;
+    let opts = gtsr_model::model::RenderOptions {
+        geometry: true,
+        ..at.options
+    };
     for (k, (v, data)) in tests.iter().zip(&scene.test).enumerate() {
         let (w, h) = v.size();
         let r = model.render(&v.camera, &v.rays, opts)?;
@@ -154,7 +156,7 @@ pub fn finish(
     };
     write_ply(&mesh_path, &world).with_context(|| format!("writing {}", mesh_path.display()))?;
     let n_splats = write_splats(trainer, scene, out)?;
-    let n_strips = write_strips(trainer, tests, scene, &out.join("renders"))?;
+    let n_strips = write_strips(&at, tests, scene, &out.join("renders"))?;
     let (ns, ni) = trainer.model().counts();
     let masks_alone = settings.masks_alone;
     let metrics = gtsr_eval::RunMetrics {

@@ -442,19 +442,19 @@ pub fn run_with(args: &Args, mut observe: impl FnMut(RunEvent<'_>)) -> Result<Ou
     // what it would in the foreground, and the training does not wait for it (only for the one
     // before, if that is still running). With `--eval-beside-training false`, and under
     // `--profile` (off the step timers), they run in turn with the training.
-    let eval_pool =
-        if !args.eval_beside_training || args.profile || rayon::current_num_threads() < 2 {
-            None
-        } else {
-            Some(
-                rayon::ThreadPoolBuilder::new()
-                    .num_threads(rayon::current_num_threads())
-                    .thread_name(|_| "gtsr-eval".into())
-                    .start_handler(|_| yield_to_the_training())
-                    .build()
-                    .context("starting the evaluation thread")?,
-            )
-        };
+    let in_turn = !args.eval_beside_training || args.profile;
+    let eval_pool = if in_turn || eval_steps.is_empty() || rayon::current_num_threads() < 2 {
+        None
+    } else {
+        Some(
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(rayon::current_num_threads())
+                .thread_name(|_| "gtsr-eval".into())
+                .start_handler(|_| yield_to_the_training())
+                .build()
+                .context("starting the evaluation thread")?,
+        )
+    };
     let mut recorder = Recorder {
         waited: 0.0,
         evaluated: 0.0,

@@ -636,9 +636,6 @@ fn a_partial_configuration_overlays_the_defaults() {
     }
 }
 
-/// `--init-mesh` starts the surface set on the given mesh (the sphere's own: every splat a
-/// step later lies on the unit sphere, where the mask-carved start fills the ball), and a
-/// missing or broken mesh is an error naming the file.
 /// Trained below the masks' resolution (12 px against 24), the final mesh still reads the
 /// masks and the shading at theirs: the model's render for the shading is made from the
 /// masks' cameras, and the hollow search runs on the fusion views of another size.
@@ -671,6 +668,9 @@ fn a_run_below_the_masks_resolution_reads_them_at_theirs() {
     );
 }
 
+/// `--init-mesh` starts the surface set on the given mesh (the sphere's own: every splat a
+/// step later lies on the unit sphere, where the mask-carved start fills the ball), and a
+/// missing or broken mesh is an error naming the file.
 #[test]
 fn the_surface_set_starts_on_a_given_mesh() {
     let tmp = tempfile::tempdir().unwrap();
