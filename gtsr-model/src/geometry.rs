@@ -1,5 +1,7 @@
-//! PGSR geometry with Burn ops: Gaussian normals (shortest axis, facing the camera), plane
-//! distances, the unbiased depth `D = D_plane / -(N . r)`, and normals from depth.
+//! PGSR geometry: the unbiased depth `D = D_plane / -(N . r)` and normals from depth, in Burn
+//! ops. Each Gaussian's normal (shortest axis, facing the camera) and plane distance are
+//! [`gtsr_render_kernels::planes::gaussian_planes`] (one op on the CPU), whose Burn-ops pieces
+//! are re-exported here.
 //!
 //! Conventions: OpenCV camera space (x right, y down, z forward); a pixel `(u, v)` (centre at
 //! `i + 0.5`) has the ray `r = ((u - cx) / fx, (v - cy) / fy, 1)` so a point at z-depth `Z`
@@ -12,64 +14,7 @@ use gtsr_render_kernels::Camera;
 /// Smallest allowed `-(N . r)` in the unbiased depth (grazing or empty pixels).
 pub const DEPTH_DENOM_MIN: f64 = 1e-3;
 
-/// `[N, 3, 3]` rotation matrices from quaternions `(w, x, y, z)` `[N, 4]` (normalised here).
-pub fn quat_to_matrix(q: &Tensor<2>) -> Tensor<3> {
-    let n = q.dims()[0];
-    let norm = q
-        .clone()
-        .powf_scalar(2.0)
-        .sum_dim(1)
-        .clamp_min(1e-24)
-        .sqrt();
-    let q = q.clone() / norm;
-    // Every entry is a quadratic form of the unit quaternion, so the nine entries are the
-    // sixteen products q_a q_b times a constant [16, 9] matrix (one pass, contiguous).
-    let outer = (q.clone().reshape([n, 4, 1]) * q.reshape([n, 1, 4])).reshape([n, 16]);
-    let coeffs = rotation_from_products(&outer);
-    outer.matmul(coeffs).reshape([n, 3, 3])
-}
-
-/// `[16, 9]`: row `4a + b` holds the coefficient of `q_a q_b` (`q = (w, x, y, z)`, unit) in
-/// each entry of the row-major rotation matrix, split evenly between `q_a q_b` and `q_b q_a`.
-fn rotation_from_products(like: &Tensor<2>) -> Tensor<2> {
-    const W: usize = 0;
-    const X: usize = 1;
-    const Y: usize = 2;
-    const Z: usize = 3;
-    let mut m = [[0f32; 9]; 16];
-    let mut add = |entry: usize, a: usize, b: usize, coeff: f32| {
-        if a == b {
-            m[4 * a + b][entry] += coeff;
-        } else {
-            m[4 * a + b][entry] += coeff / 2.0;
-            m[4 * b + a][entry] += coeff / 2.0;
-        }
-    };
-    // 1 - 2 (y^2 + z^2) = w^2 + x^2 - y^2 - z^2 on the unit sphere, and so on.
-    for (entry, signs) in [
-        (0, [1.0, 1.0, -1.0, -1.0]),
-        (4, [1.0, -1.0, 1.0, -1.0]),
-        (8, [1.0, -1.0, -1.0, 1.0]),
-    ] {
-        for (k, s) in signs.into_iter().enumerate() {
-            add(entry, k, k, s);
-        }
-    }
-    add(1, X, Y, 2.0);
-    add(1, W, Z, -2.0);
-    add(2, X, Z, 2.0);
-    add(2, W, Y, 2.0);
-    add(3, X, Y, 2.0);
-    add(3, W, Z, 2.0);
-    add(5, Y, Z, 2.0);
-    add(5, W, X, -2.0);
-    add(6, X, Z, 2.0);
-    add(6, W, Y, -2.0);
-    add(7, Y, Z, 2.0);
-    add(7, W, X, 2.0);
-    let v: Vec<f32> = m.iter().flatten().copied().collect();
-    Tensor::<2>::from_data(TensorData::new(v, [16, 9]), &like.device()).cast(like.dtype())
-}
+pub use gtsr_render_kernels::planes::{facing_normals, normal_axis, quat_to_matrix};
 
 /// A camera's rotation (world to camera, rows) and translation as tensors: `([3, 3], [1, 3])`.
 pub fn camera_tensors(camera: &Camera, device: &Device) -> (Tensor<2>, Tensor<2>) {
@@ -96,52 +41,6 @@ pub fn to_camera(points: &Tensor<2>, camera: &Camera) -> Tensor<2> {
 pub fn dir_to_camera(dirs: &Tensor<2>, camera: &Camera) -> Tensor<2> {
     let (r, _) = camera_tensors(camera, &dirs.device());
     dirs.clone().matmul(r.transpose())
-}
-
-/// `[N, 3]` one-hot rows marking each Gaussian's normal axis, that of its smallest scale
-/// (decided on the detached `log_scales`; in their dtype).
-pub fn normal_axis(log_scales: &Tensor<2>) -> Tensor<2> {
-    let n = log_scales.dims()[0];
-    let axis = log_scales.clone().detach().argmin(1).reshape([n]);
-    let onehot: Tensor<2> = axis.one_hot::<2>(3).float();
-    onehot.cast(log_scales.dtype())
-}
-
-/// `[N, 3]` world-space normals: the rotation column of the smallest scale, flipped to face the
-/// camera centre. The axis choice and the flip are piecewise constant (no gradient), the
-/// rotation is differentiated.
-pub fn facing_normals(
-    rot: &Tensor<3>,
-    log_scales: &Tensor<2>,
-    means: &Tensor<2>,
-    centre: [f64; 3],
-) -> Tensor<2> {
-    let n = means.dims()[0];
-    let device = means.device();
-    let onehot = normal_axis(log_scales);
-    // The column as a masked row sum in contiguous [N, 9] rows (row-major entries): the
-    // one-hot spread over the entries of its column, and the rows summed, as products with
-    // 0/1 matrices. A batched [3, 3] x [3, 1] product would run one tiny matrix product per
-    // Gaussian, forward and backward, and a broadcast product takes ndarray's slow path.
-    let entries = |rows: usize, cols: usize, one: &dyn Fn(usize, usize) -> bool| {
-        let v: Vec<f32> = (0..rows * cols)
-            .map(|k| f32::from(u8::from(one(k / cols, k % cols))))
-            .collect();
-        Tensor::<2>::from_data(TensorData::new(v, [rows, cols]), &device).cast(means.dtype())
-    };
-    // [3, 9]: axis c marks entries 3 r + c; [9, 3]: entry 3 r + c adds to row r.
-    let spread = entries(3, 9, &|c, e| e % 3 == c);
-    let rows = entries(9, 3, &|e, r| e / 3 == r);
-    let normal = (rot.clone().reshape([n, 9]) * onehot.matmul(spread)).matmul(rows);
-    let c = Tensor::<2>::from_data(
-        TensorData::new(centre.map(|v| v as f32).to_vec(), [1, 3]),
-        &device,
-    )
-    .cast(means.dtype());
-    let to_cam = c - means.clone().detach();
-    let side = (normal.clone().detach() * to_cam).sum_dim(1);
-    let sign = side.greater_equal_elem(0.0).float().cast(means.dtype()) * 2.0 - 1.0;
-    normal * sign
 }
 
 /// Unit directions `[N, 3]` from the camera centre to each mean, as the SH colours take them

@@ -13,15 +13,13 @@
 //! is off allocates nothing and renders nothing; [`Renders::passes`] counts raster passes.
 
 use burn::tensor::{Device, Tensor, TensorData};
+use gtsr_render_kernels::planes::gaussian_planes;
 use gtsr_render_kernels::{AlphaCutoff, Camera, SplatConfig, SplatInputs, render};
 
 use crate::config::Components;
 use crate::error::ModelError;
 use crate::gaussians::{GaussianSet, ParamKind, SetKind, host_vec, logistic};
-use crate::geometry::{
-    dir_to_camera, facing_normals, normal_axis, quat_to_matrix, to_camera, unbiased_depth,
-    view_dirs,
-};
+use crate::geometry::{normal_axis, to_camera, unbiased_depth};
 use crate::layout;
 use crate::pbr::{self, GBuffer, ShadingParams};
 use crate::sh;
@@ -139,7 +137,10 @@ struct Prepared {
     opacities: Tensor<1>,
     /// The SH colours for the camera; `None` where the caller splats other features.
     colours: Option<Tensor<2>>,
-    normals_w: Option<Tensor<2>>,
+    /// `[N, 8]` each Gaussian's plane as the camera sees it
+    /// ([`gtsr_render_kernels::planes::gaussian_planes`]: world normal, camera normal, plane
+    /// distance, cosine to the camera); `None` where no normals are needed.
+    planes: Option<Tensor<2>>,
     offsets: Option<Tensor<2>>,
 }
 
@@ -220,7 +221,7 @@ fn cat_prepared(a: &Prepared, b: &Prepared) -> Prepared {
             .as_ref()
             .zip(b.colours.as_ref())
             .map(|(x, y)| cat2(x, y)),
-        normals_w: None,
+        planes: None,
         offsets: match (&a.offsets, &b.offsets) {
             (Some(x), Some(y)) => Some(cat2(x, y)),
             _ => None,
@@ -367,8 +368,8 @@ impl Model {
                 self.sh_degree,
             )
         });
-        let normals_w =
-            normals.then(|| facing_normals(&quat_to_matrix(&quats), &log_scales, &means, centre));
+        let planes = normals
+            .then(|| gaussian_planes(quats.clone(), log_scales.clone(), means.clone(), camera));
         let n = set.len();
         Prepared {
             opacities: self.opacities(set),
@@ -376,7 +377,7 @@ impl Model {
             means,
             quats,
             colours,
-            normals_w,
+            planes,
             offsets: (offsets && set.req(ParamKind::Means).is_require_grad()).then(|| {
                 Tensor::<2>::zeros(
                     [n, 2],
@@ -418,12 +419,17 @@ impl Model {
         spread: bool,
     ) -> Tensor<2> {
         let n = p.means.dims()[0];
-        let normal_w = p.normals_w.clone().expect("normals prepared");
-        let n_c = dir_to_camera(&normal_w, camera);
-        let p_c = to_camera(&p.means, camera);
-        let plane = (n_c.clone() * p_c).sum_dim(1).neg();
-        let spread_feats = spread.then(|| spread_features(&n_c, &plane, camera));
-        let mut f = vec![n_c, plane];
+        let planes = p.planes.as_ref().expect("normals prepared");
+        // The camera-space normal and the plane distance, side by side in the planes.
+        let normal_plane = layout::cols(planes, 3..7);
+        let spread_feats = spread.then(|| {
+            spread_features(
+                &layout::cols(&normal_plane, 0..3),
+                &layout::cols(&normal_plane, 3..4),
+                camera,
+            )
+        });
+        let mut f = vec![normal_plane];
         if material {
             f.push(logistic(self.surface.req(ParamKind::BaseColour).clone()));
             f.push(logistic(self.surface.req(ParamKind::Roughness).clone()));
@@ -492,9 +498,8 @@ impl Model {
             (c_sh, out.alpha, radii, Vec::new(), None)
         } else {
             let surf_op = if fresnel {
-                let normals = surf.normals_w.clone().expect("normals prepared");
-                let to_cam = view_dirs(&surf.means, camera.centre()).neg();
-                let cos = (normals * to_cam).sum_dim(1).reshape([ns]);
+                let planes = surf.planes.as_ref().expect("normals prepared");
+                let cos = layout::col(planes, 7);
                 surf.opacities.clone() * pbr::schlick(cos, opts.shading.f0)
             } else {
                 surf.opacities.clone()
@@ -505,7 +510,7 @@ impl Model {
                 scales: surf.scales.clone(),
                 opacities: surf_op,
                 colours: surf.colours.clone(),
-                normals_w: None,
+                planes: None,
                 offsets: surf.offsets.clone(),
             };
             let (all, int_p) = match interior {
@@ -581,12 +586,7 @@ impl Model {
                     scatter: scatter.clone(),
                     rays: rays.clone(),
                 };
-                let shaded = pbr::shade(&gb, light, opts.shading).colour;
-                Some(if opts.pbr_srgb {
-                    pbr::linear_to_srgb(shaded)
-                } else {
-                    shaded
-                })
+                Some(pbr::c_pbr(&gb, light, opts.shading, opts.pbr_srgb))
             }
             _ => None,
         };
@@ -637,7 +637,7 @@ impl Model {
             scales: constant(&surf.scales),
             opacities: surf.opacities.clone(),
             colours: None,
-            normals_w: None,
+            planes: None,
             offsets: surf.offsets.as_ref().map(constant),
         };
         let out = self.splat(&fixed, surf.opacities.clone(), feats, camera)?;

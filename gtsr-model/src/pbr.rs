@@ -17,21 +17,17 @@
 //!   lit as a diffuse lobe: multiplied by `A c L / dist^2 + (1 - A)`.
 //!
 //! Material maps arrive premultiplied by coverage; they are divided by `max(A, COVER_MIN)`.
+//!
+//! The formula lives in [`gtsr_render_kernels::shade`], which runs it as one op with its
+//! backward pass on the CPU ([`c_pbr`]) and as Burn's ops elsewhere ([`shade`] keeps the terms
+//! apart for inspection); [`shade_pixel`] evaluates it directly, for the tests.
 
 use burn::tensor::Tensor;
+use gtsr_render_kernels::shade::{self as kernel, ShadeMaps, ShadeParams};
 
-/// Lower clamp of `n . v` (grazing angles).
-pub const COS_MIN: f64 = 0.02;
-/// Lower clamp of the squared light distance.
-pub const DIST2_MIN: f64 = 1e-4;
-/// Lower clamp of the coverage used to un-premultiply material maps.
-pub const COVER_MIN: f64 = 1e-2;
-
-/// Schlick's approximation `F0 + (1 - F0) (1 - c)^5` for `c` in `[0, 1]` (clamped).
-pub fn schlick<const D: usize>(cos: Tensor<D>, f0: f64) -> Tensor<D> {
-    let m = (cos.clamp(0.0, 1.0).neg() + 1.0).powi_scalar(5);
-    m * (1.0 - f0) + f0
-}
+pub use gtsr_render_kernels::shade::{
+    COS_MIN, COVER_MIN, DIST2_MIN, linear_to_srgb, schlick, srgb_to_linear,
+};
 
 /// Inputs of the deferred shading, all per pixel.
 #[derive(Clone, Debug)]
@@ -87,77 +83,49 @@ pub struct Shaded {
     pub specular: Tensor<2>,
 }
 
-/// Deferred C_PBR for a light of intensity `light` (`[1, 1]`, positive) at the camera.
-pub fn shade(g: &GBuffer, light: Tensor<2>, p: ShadingParams) -> Shaded {
-    let [h, w, _] = g.normal.dims();
-    let cover_div = g.coverage.clone().clamp_min(COVER_MIN);
-    let n_len = g
-        .normal
-        .clone()
-        .powf_scalar(2.0)
-        .sum_dim(2)
-        .clamp_min(1e-12)
-        .sqrt();
-    let n = g.normal.clone() / n_len;
-    let ray_len2 = g.rays.clone().powf_scalar(2.0).sum_dim(2).reshape([h, w]);
-    let v = g.rays.clone().neg() / ray_len2.clone().sqrt().reshape([h, w, 1]);
-    let c = (n * v).sum_dim(2).reshape([h, w]).clamp(COS_MIN, 1.0);
-    let r = (g.roughness.clone() / cover_div.clone()).clamp(p.min_roughness, 1.0);
-    let a2 = r.clone().powi_scalar(4);
-    let c2 = c.clone() * c.clone();
-    let denom = (a2.clone() - 1.0) * c2.clone() + 1.0;
-    let d = a2 / (denom.clone() * denom * std::f64::consts::PI);
-    let k = (r + 1.0).powi_scalar(2) / 8.0;
-    let g1 = c.clone() / (c.clone() * (k.clone().neg() + 1.0) + k);
-    let geo = g1.clone() * g1;
-    let f = schlick(c.clone(), p.f0);
-    let dist2 = (g.depth.clone() * g.depth.clone() * ray_len2).clamp_min(DIST2_MIN);
-    let radiance = light.reshape([1, 1]) / dist2;
-    let spec = f.clone() * d * geo / (c2 * 4.0) * radiance.clone();
-    let base = g.base.clone() / cover_div.reshape([h, w, 1]);
-    let diffuse =
-        base * (f.clone() * f.clone() * radiance.clone() / std::f64::consts::PI).reshape([h, w, 1]);
-    let cov = g.coverage.clone().reshape([h, w, 1]);
-    let mut colour = (diffuse * p.gamma + spec.clone().reshape([h, w, 1])) * cov.clone();
-    if let Some(s) = &g.scatter {
-        let mut s = if p.scatter_srgb {
-            srgb_to_linear(s.clone())
-        } else {
-            s.clone()
-        };
-        if p.scatter_lambert {
-            // A (c L / dist^2) + (1 - A): lit where there is a surface, as it is elsewhere.
-            let lit = (c.clone() * radiance.clone() - 1.0) * g.coverage.clone() + 1.0;
-            s = s * lit.reshape([h, w, 1]);
+impl GBuffer {
+    fn maps(&self) -> ShadeMaps {
+        ShadeMaps {
+            normal: self.normal.clone(),
+            depth: self.depth.clone(),
+            coverage: self.coverage.clone(),
+            base: self.base.clone(),
+            roughness: self.roughness.clone(),
+            scatter: self.scatter.clone(),
+            rays: self.rays.clone(),
         }
-        colour = colour + s * ((f.clone().reshape([h, w, 1]) * cov).neg() + 1.0);
     }
+}
+
+impl ShadingParams {
+    fn kernel(self, encode_srgb: bool) -> ShadeParams {
+        ShadeParams {
+            f0: self.f0,
+            gamma: self.gamma,
+            min_roughness: self.min_roughness,
+            scatter_lambert: self.scatter_lambert,
+            scatter_srgb: self.scatter_srgb,
+            encode_srgb,
+        }
+    }
+}
+
+/// Deferred C_PBR for a light of intensity `light` (`[1, 1]`, positive) at the camera,
+/// sRGB-encoded with `encode_srgb`: what training compares with the images. One fused op on
+/// the CPU ([`gtsr_render_kernels::shade::shade`]), Burn's ops elsewhere.
+pub fn c_pbr(g: &GBuffer, light: Tensor<2>, p: ShadingParams, encode_srgb: bool) -> Tensor<3> {
+    kernel::shade(&g.maps(), light, p.kernel(encode_srgb))
+}
+
+/// Deferred C_PBR (linear) with its Fresnel and specular terms apart, in Burn's ops: the same
+/// colour as [`c_pbr`] without the encoding.
+pub fn shade(g: &GBuffer, light: Tensor<2>, p: ShadingParams) -> Shaded {
+    let t = kernel::shade_terms_by_tensor_ops(&g.maps(), light, p.kernel(false));
     Shaded {
-        colour,
-        fresnel: f,
-        specular: spec,
+        colour: t.colour,
+        fresnel: t.fresnel,
+        specular: t.specular,
     }
-}
-
-/// The sRGB transfer curve (IEC 61966-2-1) on linear values, with the input clamped to
-/// `[0, 1]` and the linear toe, so its gradient is bounded.
-pub fn linear_to_srgb<const D: usize>(x: Tensor<D>) -> Tensor<D> {
-    let x = x.clamp(0.0, 1.0);
-    let low = x.clone() * 12.92;
-    let high = x.clone().clamp_min(0.003_130_8).powf_scalar(1.0 / 2.4) * 1.055 - 0.055;
-    let is_low = x.lower_equal_elem(0.003_130_8);
-    high.mask_where(is_low, low)
-}
-
-/// The inverse of [`linear_to_srgb`] on `[0, 1]`, extended past 1 by the same power (SH
-/// colours are not bounded above); negative inputs give 0. Its gradient is bounded on any
-/// bounded input.
-pub fn srgb_to_linear<const D: usize>(x: Tensor<D>) -> Tensor<D> {
-    let x = x.clamp_min(0.0);
-    let low = x.clone() / 12.92;
-    let high = ((x.clone() + 0.055) / 1.055).powf_scalar(2.4);
-    let is_low = x.lower_equal_elem(0.040_45);
-    high.mask_where(is_low, low)
 }
 
 /// Host version of [`shade`] for one pixel (f64), used by tests as the direct evaluation.

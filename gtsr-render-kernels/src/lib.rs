@@ -6,8 +6,10 @@
 //! separable window (SSIM's Gaussian) on the CPU ([`blur_planes`]), and a third,
 //! [`sh::ShBackend`], evaluates spherical-harmonic colours in each Gaussian's view direction
 //! ([`sh::sh_colours`]), and a fourth, [`adam::AdamBackend`], takes one Adam step on a
-//! parameter tensor in a single pass ([`adam::adam_step`]). Use the splats through
-//! [`render`]:
+//! parameter tensor in a single pass ([`adam::adam_step`]), and a fifth,
+//! [`shade::ShadeBackend`], shades pixels from blended maps under a light at the camera
+//! ([`shade::shade`]), and a sixth, [`planes::PlanesBackend`], gives each flat Gaussian's
+//! normal and plane as a camera sees them ([`planes::gaussian_planes`]). Use the splats through [`render`]:
 //!
 //! - inputs are ordinary Burn tensors (see [`SplatInputs`]); on an autodiff device the image
 //!   and alpha are differentiable with respect to means, rotations, scales, opacities, features
@@ -87,9 +89,11 @@ pub mod config;
 pub mod cpu;
 #[cfg(feature = "wgpu")]
 pub mod gpu;
+pub mod planes;
 pub mod reference;
 pub mod scalar;
 pub mod sh;
+pub mod shade;
 
 pub use antialias::blur_compensation;
 pub use api::{
