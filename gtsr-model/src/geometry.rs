@@ -37,18 +37,6 @@ pub fn to_camera(points: &Tensor<2>, camera: &Camera) -> Tensor<2> {
     points.clone().matmul(r.transpose()) + t
 }
 
-/// World directions `[N, 3]` to camera space (rotation only).
-pub fn dir_to_camera(dirs: &Tensor<2>, camera: &Camera) -> Tensor<2> {
-    let (r, _) = camera_tensors(camera, &dirs.device());
-    dirs.clone().matmul(r.transpose())
-}
-
-/// Unit directions `[N, 3]` from the camera centre to each mean, as the SH colours take them
-/// ([`gtsr_render_kernels::sh::view_directions`]).
-pub fn view_dirs(means: &Tensor<2>, centre: [f64; 3]) -> Tensor<2> {
-    gtsr_render_kernels::sh::view_directions(means.clone(), centre)
-}
-
 /// The `[H, W, 3]` camera-space rays `((u - cx) / fx, (v - cy) / fy, 1)` through pixel centres.
 pub fn pixel_rays(camera: &Camera, device: &Device) -> Tensor<3> {
     let (w, h) = (camera.width as usize, camera.height as usize);

@@ -23,109 +23,24 @@
 //! apart for inspection); [`shade_pixel`] evaluates it directly, for the tests.
 
 use burn::tensor::Tensor;
-use gtsr_render_kernels::shade::{self as kernel, ShadeMaps, ShadeParams};
+use gtsr_render_kernels::shade as kernel;
 
 pub use gtsr_render_kernels::shade::{
-    COS_MIN, COVER_MIN, DIST2_MIN, linear_to_srgb, schlick, srgb_to_linear,
+    COS_MIN, COVER_MIN, DIST2_MIN, ShadeMaps as GBuffer, ShadeParams as ShadingParams,
+    ShadeTerms as Shaded, linear_to_srgb, schlick, srgb_to_linear,
 };
-
-/// Inputs of the deferred shading, all per pixel.
-#[derive(Clone, Debug)]
-pub struct GBuffer {
-    /// `[H, W, 3]` blended camera-space normal (premultiplied by coverage).
-    pub normal: Tensor<3>,
-    /// `[H, W]` unbiased z-depth.
-    pub depth: Tensor<2>,
-    /// `[H, W]` surface coverage.
-    pub coverage: Tensor<2>,
-    /// `[H, W, 3]` blended base colour (premultiplied).
-    pub base: Tensor<3>,
-    /// `[H, W]` blended roughness (premultiplied).
-    pub roughness: Tensor<2>,
-    /// `[H, W, 3]` scattering map from the interior set (`None` without interior set).
-    pub scatter: Option<Tensor<3>>,
-    /// `[H, W, 3]` camera-space pixel rays (z = 1).
-    pub rays: Tensor<3>,
-}
-
-/// Shading constants.
-#[derive(Clone, Copy, Debug)]
-pub struct ShadingParams {
-    /// Schlick F0.
-    pub f0: f64,
-    /// Diffuse weight gamma.
-    pub gamma: f64,
-    /// Lower roughness clamp.
-    pub min_roughness: f64,
-    /// Shade the scattering map as a diffuse lobe lit by the point light: on covered pixels
-    /// multiply it by `c L / dist^2`, the irradiance the light at the camera gives a surface of
-    /// normal `n` (`c = n . v`), and let the model render it from the interior set's
-    /// view-independent (degree 0) colour. Off: the paper's scattering map, the interior set's
-    /// view-dependent SH colour as it is, which can itself carry the `c` of every view (over
-    /// the views that see a surface point, its `c` is a degree-1 SH of the view direction), so
-    /// the normals need not explain the shading.
-    pub scatter_lambert: bool,
-    /// Decode the scattering map from the sRGB curve ([`srgb_to_linear`]) before it is added
-    /// to the linear specular and diffuse terms: the map holds the interior set's colours as
-    /// C_SH blends them against sRGB images. Off: the map is taken as linear radiance, which
-    /// makes C_PBR, once encoded, brighter than C_SH with the same interior colours.
-    pub scatter_srgb: bool,
-}
-
-/// The shading terms, kept apart for inspection and tests.
-#[derive(Clone, Debug)]
-pub struct Shaded {
-    /// `[H, W, 3]` C_PBR (linear).
-    pub colour: Tensor<3>,
-    /// `[H, W]` per-pixel Fresnel.
-    pub fresnel: Tensor<2>,
-    /// `[H, W]` specular `F D G / (4 c^2) * L / dist^2`.
-    pub specular: Tensor<2>,
-}
-
-impl GBuffer {
-    fn maps(&self) -> ShadeMaps {
-        ShadeMaps {
-            normal: self.normal.clone(),
-            depth: self.depth.clone(),
-            coverage: self.coverage.clone(),
-            base: self.base.clone(),
-            roughness: self.roughness.clone(),
-            scatter: self.scatter.clone(),
-            rays: self.rays.clone(),
-        }
-    }
-}
-
-impl ShadingParams {
-    fn kernel(self, encode_srgb: bool) -> ShadeParams {
-        ShadeParams {
-            f0: self.f0,
-            gamma: self.gamma,
-            min_roughness: self.min_roughness,
-            scatter_lambert: self.scatter_lambert,
-            scatter_srgb: self.scatter_srgb,
-            encode_srgb,
-        }
-    }
-}
 
 /// Deferred C_PBR for a light of intensity `light` (`[1, 1]`, positive) at the camera,
 /// sRGB-encoded with `encode_srgb`: what training compares with the images. One fused op on
 /// the CPU ([`gtsr_render_kernels::shade::shade`]), Burn's ops elsewhere.
 pub fn c_pbr(g: &GBuffer, light: Tensor<2>, p: ShadingParams, encode_srgb: bool) -> Tensor<3> {
-    kernel::shade(&g.maps(), light, p.kernel(encode_srgb))
+    kernel::shade(g, light, p, encode_srgb)
 }
 
 /// Deferred C_PBR (linear) with its Fresnel and specular terms apart, in Burn's ops: the same
 /// colour as [`c_pbr`] without the encoding.
 pub fn shade(g: &GBuffer, light: Tensor<2>, p: ShadingParams) -> Shaded {
-    let t = kernel::shade_terms_by_tensor_ops(&g.maps(), light, p.kernel(false));
-    Shaded {
-        colour: t.colour,
-        fresnel: t.fresnel,
-        specular: t.specular,
-    }
+    kernel::shade_terms_by_tensor_ops(g, light, p, false)
 }
 
 /// Host version of [`shade`] for one pixel (f64), used by tests as the direct evaluation.

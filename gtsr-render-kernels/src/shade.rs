@@ -12,15 +12,17 @@
 //! - `colour = A (F D G / (4 c^2) E + gamma B / d F^2 E / pi) + (1 - A F) s lit`, where `s` is
 //!   `S` (or `S` decoded from the sRGB curve, [`ShadeParams::scatter_srgb`]) and `lit` is 1 (or
 //!   `A c E + 1 - A`, [`ShadeParams::scatter_lambert`]);
-//! - with [`ShadeParams::encode_srgb`] the colour is clamped to `[0, 1]` and sRGB-encoded.
+//! - with `encode_srgb` the colour is clamped to `[0, 1]` and sRGB-encoded.
 //!
 //! Clamps pass the gradient where their input lies within the bounds (ends included) and stop it
 //! outside, as Burn's `clamp` does. On NdArray the shading is one backend op
 //! ([`ShadeBackend`]): one pass over the pixels forward and one backward, parallel over rows,
-//! where the same expression in Burn ops takes about sixty tensor ops and their autodiff nodes.
+//! where the same expression in Burn ops takes about fifty tensor ops and their autodiff nodes.
 //! Other devices take [`shade_by_tensor_ops`].
 
-use burn::backend::{Autodiff, Backend, Dispatch, NdArray, backend_extension, tensor::FloatTensor};
+use burn::backend::{
+    Autodiff, Backend, Dispatch, ExtensionType, NdArray, backend_extension, tensor::FloatTensor,
+};
 use burn::tensor::{DType, Tensor};
 use burn_autodiff::{
     checkpoint::{base::Checkpointer, strategy::CheckpointStrategy},
@@ -56,12 +58,17 @@ pub struct ShadeParams {
     pub gamma: f64,
     /// Lower clamp of the roughness (keeps GGX finite).
     pub min_roughness: f64,
-    /// Light the scattering map as a diffuse lobe: multiply it by `A c E + 1 - A`.
+    /// Shade the scattering map as a diffuse lobe lit by the point light: on covered pixels
+    /// multiply it by `c E`, the irradiance the light at the camera gives a surface of normal
+    /// `n` (`c = n . v`; `A c E + 1 - A` in all). Off: the scattering map as it is (the
+    /// paper's), which can itself carry the `c` of every view (over the views that see a
+    /// surface point, its `c` is a degree-1 SH of the view direction), so the normals need not
+    /// explain the shading.
     pub scatter_lambert: bool,
-    /// Decode the scattering map from the sRGB curve before adding it.
+    /// Decode the scattering map from the sRGB curve before it is added to the linear specular
+    /// and diffuse terms (a map of colours blended against sRGB images is sRGB-encoded). Off:
+    /// the map is taken as linear radiance.
     pub scatter_srgb: bool,
-    /// Encode the shaded colour with the sRGB curve (after clamping it to `[0, 1]`).
-    pub encode_srgb: bool,
 }
 
 /// The per-pixel maps of one image, `[H, W, ..]`.
@@ -87,18 +94,10 @@ pub struct ShadeMaps {
 /// op or the tensor ops by device.
 #[backend_extension(Autodiff, NdArray)]
 pub trait ShadeBackend: Backend {
-    /// The colour `[H, W, 3]` from the maps (`scatter` `[H, W, 3]` is read only when
-    /// `has_scatter`), `rays` `[H, W, 3]` (not differentiated) and `light` `[1, 1]`.
-    #[allow(clippy::too_many_arguments)]
+    /// The colour `[H, W, 3]` from the maps (`scatter` is read only with
+    /// [`ShadeConfig::has_scatter`]), the rays (not differentiated) and the light.
     fn shade_pixels(
-        normal: FloatTensor<Self>,
-        depth: FloatTensor<Self>,
-        coverage: FloatTensor<Self>,
-        base: FloatTensor<Self>,
-        roughness: FloatTensor<Self>,
-        scatter: FloatTensor<Self>,
-        light: FloatTensor<Self>,
-        rays: FloatTensor<Self>,
+        #[extension_type] inputs: ShadeInputs<Self>,
         config: ShadeConfig,
     ) -> FloatTensor<Self>;
 }
@@ -110,6 +109,8 @@ pub struct ShadeConfig {
     pub params: ShadeParams,
     /// Whether the scattering map is used.
     pub has_scatter: bool,
+    /// Encode the colour with the sRGB curve (after clamping it to `[0, 1]`).
+    pub encode_srgb: bool,
 }
 
 /// The kernels behind [`ShadeBackend`]: forward, and backward into the seven differentiable
@@ -128,7 +129,7 @@ pub trait ShadeKernels: Backend {
 }
 
 /// The primitives of one shading op: the seven differentiable inputs and the rays.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, ExtensionType)]
 pub struct ShadeInputs<B: Backend> {
     /// `[H, W, 3]`.
     pub normal: FloatTensor<B>,
@@ -171,27 +172,7 @@ impl ShadeKernels for NdArray {
 }
 
 impl ShadeBackend for NdArray {
-    fn shade_pixels(
-        normal: NdArrayTensor,
-        depth: NdArrayTensor,
-        coverage: NdArrayTensor,
-        base: NdArrayTensor,
-        roughness: NdArrayTensor,
-        scatter: NdArrayTensor,
-        light: NdArrayTensor,
-        rays: NdArrayTensor,
-        config: ShadeConfig,
-    ) -> NdArrayTensor {
-        let inputs = ShadeInputs {
-            normal,
-            depth,
-            coverage,
-            base,
-            roughness,
-            scatter,
-            light,
-            rays,
-        };
+    fn shade_pixels(inputs: ShadeInputs<Self>, config: ShadeConfig) -> NdArrayTensor {
         Self::shade_forward(&inputs, config)
     }
 }
@@ -202,29 +183,34 @@ fn image_size(t: &NdArrayTensor) -> (usize, usize) {
     (s[0], s[1])
 }
 
-/// The inputs as host slices.
-struct HostMaps<'a, F: Clone> {
-    normal: std::borrow::Cow<'a, [F]>,
-    depth: std::borrow::Cow<'a, [F]>,
-    coverage: std::borrow::Cow<'a, [F]>,
-    base: std::borrow::Cow<'a, [F]>,
-    roughness: std::borrow::Cow<'a, [F]>,
-    scatter: Option<std::borrow::Cow<'a, [F]>>,
-    rays: std::borrow::Cow<'a, [F]>,
-    light: F,
-}
-
-fn host_maps<F: Real>(i: &ShadeInputs<NdArray>, has_scatter: bool) -> HostMaps<'_, F> {
-    HostMaps {
-        normal: host_slice::<F>(&i.normal),
-        depth: host_slice::<F>(&i.depth),
-        coverage: host_slice::<F>(&i.coverage),
-        base: host_slice::<F>(&i.base),
-        roughness: host_slice::<F>(&i.roughness),
-        scatter: has_scatter.then(|| host_slice::<F>(&i.scatter)),
-        rays: host_slice::<F>(&i.rays),
+/// Runs `f` on the inputs as host slices (borrowed where they are contiguous and of precision
+/// `F`).
+fn with_pixels<F: Real, R>(
+    i: &ShadeInputs<NdArray>,
+    has_scatter: bool,
+    f: impl FnOnce(&Pixels<'_, F>) -> R,
+) -> R {
+    let (normal, depth, coverage) = (
+        host_slice::<F>(&i.normal),
+        host_slice::<F>(&i.depth),
+        host_slice::<F>(&i.coverage),
+    );
+    let (base, roughness, rays) = (
+        host_slice::<F>(&i.base),
+        host_slice::<F>(&i.roughness),
+        host_slice::<F>(&i.rays),
+    );
+    let scatter = has_scatter.then(|| host_slice::<F>(&i.scatter));
+    f(&Pixels {
+        normal: &normal,
+        depth: &depth,
+        coverage: &coverage,
+        base: &base,
+        roughness: &roughness,
+        scatter: scatter.as_deref(),
+        rays: &rays,
         light: host_slice::<F>(&i.light)[0],
-    }
+    })
 }
 
 fn nd_forward<F: Real + burn::tensor::Element>(
@@ -232,8 +218,10 @@ fn nd_forward<F: Real + burn::tensor::Element>(
     config: ShadeConfig,
 ) -> NdArrayTensor {
     let (h, w) = image_size(&inputs.normal);
-    let maps = host_maps::<F>(inputs, config.has_scatter);
-    to_nd(forward_host(&maps.pixels(), config.params), &[h, w, 3])
+    let colour = with_pixels::<F, _>(inputs, config.has_scatter, |m| {
+        forward_host(m, config.params, config.encode_srgb)
+    });
+    to_nd(colour, &[h, w, 3])
 }
 
 fn nd_backward<F: Real + burn::tensor::Element>(
@@ -242,33 +230,18 @@ fn nd_backward<F: Real + burn::tensor::Element>(
     grad: &NdArrayTensor,
 ) -> [NdArrayTensor; 7] {
     let (h, w) = image_size(&inputs.normal);
-    let maps = host_maps::<F>(inputs, config.has_scatter);
-    let g = backward_host(&maps.pixels(), config.params, &host_slice::<F>(grad));
-    let scatter = g.scatter.unwrap_or_else(|| vec![F::zero(); 3 * h * w]);
+    let g = with_pixels::<F, _>(inputs, config.has_scatter, |m| {
+        backward_host(m, config.params, config.encode_srgb, &host_slice::<F>(grad))
+    });
     [
         to_nd(g.normal, &[h, w, 3]),
         to_nd(g.depth, &[h, w]),
         to_nd(g.coverage, &[h, w]),
         to_nd(g.base, &[h, w, 3]),
         to_nd(g.roughness, &[h, w]),
-        to_nd(scatter, &[h, w, 3]),
+        to_nd(g.scatter, &[h, w, 3]),
         to_nd(vec![g.light], &[1, 1]),
     ]
-}
-
-impl<'a, F: Real> HostMaps<'a, F> {
-    fn pixels(&self) -> Pixels<'_, F> {
-        Pixels {
-            normal: &self.normal,
-            depth: &self.depth,
-            coverage: &self.coverage,
-            base: &self.base,
-            roughness: &self.roughness,
-            scatter: self.scatter.as_deref(),
-            rays: &self.rays,
-            light: self.light,
-        }
-    }
 }
 
 /// The maps of one image as host slices (`[P, 3]` or `[P]` for `P` pixels), and the light.
@@ -472,7 +445,7 @@ fn pixel<F: Real>(m: &Pixels<'_, F>, prm: &ShadeParams, p: usize) -> Pixel<F> {
 }
 
 /// The forward pass on host slices: the colour `[P, 3]`.
-pub fn forward_host<F: Real>(m: &Pixels<'_, F>, prm: ShadeParams) -> Vec<F> {
+pub fn forward_host<F: Real>(m: &Pixels<'_, F>, prm: ShadeParams, encode_srgb: bool) -> Vec<F> {
     let n = m.depth.len();
     let mut out = vec![F::zero(); 3 * n];
     out.par_chunks_mut(3 * CHUNK)
@@ -481,7 +454,7 @@ pub fn forward_host<F: Real>(m: &Pixels<'_, F>, prm: ShadeParams) -> Vec<F> {
             for (j, oc) in o.chunks_mut(3).enumerate() {
                 let px = pixel(m, &prm, chunk * CHUNK + j);
                 for (o, c) in oc.iter_mut().zip(px.colour) {
-                    *o = if prm.encode_srgb { encode(c).0 } else { c };
+                    *o = if encode_srgb { encode(c).0 } else { c };
                 }
             }
         });
@@ -501,14 +474,19 @@ pub struct ShadeGrads<F> {
     pub base: Vec<F>,
     /// `[P]`.
     pub roughness: Vec<F>,
-    /// `[P, 3]`, when the maps had a scattering map.
-    pub scatter: Option<Vec<F>>,
+    /// `[P, 3]` (zero without a scattering map).
+    pub scatter: Vec<F>,
     /// The light's gradient (summed over the pixels).
     pub light: F,
 }
 
 /// The backward pass on host slices, given the colour's gradient `grad` `[P, 3]`.
-pub fn backward_host<F: Real>(m: &Pixels<'_, F>, prm: ShadeParams, grad: &[F]) -> ShadeGrads<F> {
+pub fn backward_host<F: Real>(
+    m: &Pixels<'_, F>,
+    prm: ShadeParams,
+    encode_srgb: bool,
+    grad: &[F],
+) -> ShadeGrads<F> {
     let n = m.depth.len();
     let mut g = ShadeGrads {
         normal: vec![F::zero(); 3 * n],
@@ -516,16 +494,8 @@ pub fn backward_host<F: Real>(m: &Pixels<'_, F>, prm: ShadeParams, grad: &[F]) -
         coverage: vec![F::zero(); n],
         base: vec![F::zero(); 3 * n],
         roughness: vec![F::zero(); n],
-        scatter: m.scatter.map(|_| vec![F::zero(); 3 * n]),
+        scatter: vec![F::zero(); 3 * n],
         light: F::zero(),
-    };
-    let mut no_scatter = Vec::new();
-    let scatter_out = g.scatter.as_mut().unwrap_or(&mut no_scatter);
-    let chunks = n.div_ceil(CHUNK);
-    let scatter_chunks: Vec<&mut [F]> = if m.scatter.is_some() {
-        scatter_out.chunks_mut(3 * CHUNK).collect()
-    } else {
-        (0..chunks).map(|_| &mut [][..]).collect()
     };
     let light_parts: Vec<F> = (
         g.normal.par_chunks_mut(3 * CHUNK),
@@ -533,7 +503,7 @@ pub fn backward_host<F: Real>(m: &Pixels<'_, F>, prm: ShadeParams, grad: &[F]) -
         g.coverage.par_chunks_mut(CHUNK),
         g.base.par_chunks_mut(3 * CHUNK),
         g.roughness.par_chunks_mut(CHUNK),
-        scatter_chunks.into_par_iter(),
+        g.scatter.par_chunks_mut(3 * CHUNK),
     )
         .into_par_iter()
         .enumerate()
@@ -542,15 +512,13 @@ pub fn backward_host<F: Real>(m: &Pixels<'_, F>, prm: ShadeParams, grad: &[F]) -
             for j in 0..gz.len() {
                 let p = chunk * CHUNK + j;
                 let go = [grad[3 * p], grad[3 * p + 1], grad[3 * p + 2]];
-                let out = pixel_backward(m, &prm, p, go);
+                let out = pixel_backward(m, &prm, encode_srgb, p, go);
                 gn[3 * j..3 * j + 3].copy_from_slice(&out.normal);
                 gz[j] = out.depth;
                 ga[j] = out.coverage;
                 gb[3 * j..3 * j + 3].copy_from_slice(&out.base);
                 gr[j] = out.roughness;
-                if !gs.is_empty() {
-                    gs[3 * j..3 * j + 3].copy_from_slice(&out.scatter);
-                }
+                gs[3 * j..3 * j + 3].copy_from_slice(&out.scatter);
                 light = light + out.light;
             }
             light
@@ -577,6 +545,7 @@ struct PixelGrads<F> {
 fn pixel_backward<F: Real>(
     m: &Pixels<'_, F>,
     prm: &ShadeParams,
+    encode_srgb: bool,
     p: usize,
     go: [F; 3],
 ) -> PixelGrads<F> {
@@ -587,7 +556,7 @@ fn pixel_backward<F: Real>(
     let a = m.coverage[p];
     // Through the encoding.
     let gcol: [F; 3] = std::array::from_fn(|ch| {
-        if prm.encode_srgb {
+        if encode_srgb {
             go[ch] * encode(px.colour[ch]).1
         } else {
             go[ch]
@@ -717,35 +686,25 @@ impl<B: ShadeKernels> Backward<B, 7> for ShadeBackwardStep {
 }
 
 impl<B: ShadeKernels, C: CheckpointStrategy> ShadeBackend for Autodiff<B, C> {
-    fn shade_pixels(
-        normal: FloatTensor<Self>,
-        depth: FloatTensor<Self>,
-        coverage: FloatTensor<Self>,
-        base: FloatTensor<Self>,
-        roughness: FloatTensor<Self>,
-        scatter: FloatTensor<Self>,
-        light: FloatTensor<Self>,
-        rays: FloatTensor<Self>,
-        config: ShadeConfig,
-    ) -> FloatTensor<Self> {
+    fn shade_pixels(i: ShadeInputs<Self>, config: ShadeConfig) -> FloatTensor<Self> {
         let guards = [
-            normal.node(),
-            depth.node(),
-            coverage.node(),
-            base.node(),
-            roughness.node(),
-            scatter.node(),
-            light.node(),
+            i.normal.node(),
+            i.depth.node(),
+            i.coverage.node(),
+            i.base.node(),
+            i.roughness.node(),
+            i.scatter.node(),
+            i.light.node(),
         ];
         let inputs = ShadeInputs {
-            normal: normal.into_primitive(),
-            depth: depth.into_primitive(),
-            coverage: coverage.into_primitive(),
-            base: base.into_primitive(),
-            roughness: roughness.into_primitive(),
-            scatter: scatter.into_primitive(),
-            light: light.into_primitive(),
-            rays: rays.into_primitive(),
+            normal: i.normal.into_primitive(),
+            depth: i.depth.into_primitive(),
+            coverage: i.coverage.into_primitive(),
+            base: i.base.into_primitive(),
+            roughness: i.roughness.into_primitive(),
+            scatter: i.scatter.into_primitive(),
+            light: i.light.into_primitive(),
+            rays: i.rays.into_primitive(),
         };
         let out = B::shade_forward(&inputs, config);
         match ShadeBackwardStep
@@ -760,7 +719,7 @@ impl<B: ShadeKernels, C: CheckpointStrategy> ShadeBackend for Autodiff<B, C> {
 }
 
 /// The shaded colour `[H, W, 3]` of `maps` under a light of intensity `light` (`[1, 1]`,
-/// positive) at the camera; differentiable on an autodiff device in every map but the rays and
+/// positive) at the camera, sRGB-encoded with `encode_srgb`; differentiable on an autodiff device in every map but the rays and
 /// in the light (see the module docs). NdArray runs it as one op ([`ShadeBackend`]); other
 /// devices, other dtypes and differentiable rays take [`shade_by_tensor_ops`].
 ///
@@ -780,13 +739,17 @@ impl<B: ShadeKernels, C: CheckpointStrategy> ShadeBackend for Autodiff<B, C> {
 ///     rays: ray,
 /// };
 /// let params = ShadeParams {
-///     f0: 0.04, gamma: 0.3, min_roughness: 0.08,
-///     scatter_lambert: false, scatter_srgb: false, encode_srgb: false,
+///     f0: 0.04, gamma: 0.3, min_roughness: 0.08, scatter_lambert: false, scatter_srgb: false,
 /// };
-/// let colour = shade(&maps, Tensor::from_floats([[4.0]], &device), params);
+/// let colour = shade(&maps, Tensor::from_floats([[4.0]], &device), params, false);
 /// assert_eq!(colour.dims(), [1, 1, 3]);
 /// ```
-pub fn shade(maps: &ShadeMaps, light: Tensor<2>, params: ShadeParams) -> Tensor<3> {
+pub fn shade(
+    maps: &ShadeMaps,
+    light: Tensor<2>,
+    params: ShadeParams,
+    encode_srgb: bool,
+) -> Tensor<3> {
     let device = maps.normal.device();
     let dtype = maps.normal.dtype();
     let mut dtypes = vec![
@@ -803,39 +766,45 @@ pub fn shade(maps: &ShadeMaps, light: Tensor<2>, params: ShadeParams) -> Tensor<
         && on_ndarray(&device)
         && !maps.rays.is_require_grad();
     if !fused {
-        return shade_by_tensor_ops(maps, light, params);
+        return shade_by_tensor_ops(maps, light, params, encode_srgb);
     }
     let config = ShadeConfig {
         params,
         has_scatter: maps.scatter.is_some(),
+        encode_srgb,
     };
     // Without a scattering map the op reads none; any tensor of the shape fills the slot.
     let scatter = maps
         .scatter
         .clone()
         .unwrap_or_else(|| maps.base.clone().detach());
-    Tensor::from_dispatch(<Dispatch as ShadeBackend>::shade_pixels(
-        maps.normal.clone().into_dispatch(),
-        maps.depth.clone().into_dispatch(),
-        maps.coverage.clone().into_dispatch(),
-        maps.base.clone().into_dispatch(),
-        maps.roughness.clone().into_dispatch(),
-        scatter.into_dispatch(),
-        light.reshape([1, 1]).into_dispatch(),
-        maps.rays.clone().detach().into_dispatch(),
-        config,
-    ))
+    let inputs = ShadeInputs {
+        normal: maps.normal.clone().into_dispatch(),
+        depth: maps.depth.clone().into_dispatch(),
+        coverage: maps.coverage.clone().into_dispatch(),
+        base: maps.base.clone().into_dispatch(),
+        roughness: maps.roughness.clone().into_dispatch(),
+        scatter: scatter.into_dispatch(),
+        light: light.reshape([1, 1]).into_dispatch(),
+        rays: maps.rays.clone().detach().into_dispatch(),
+    };
+    Tensor::from_dispatch(<Dispatch as ShadeBackend>::shade_pixels(inputs, config))
 }
 
 /// [`shade`] in Burn tensor ops (any backend).
-pub fn shade_by_tensor_ops(maps: &ShadeMaps, light: Tensor<2>, params: ShadeParams) -> Tensor<3> {
-    shade_terms_by_tensor_ops(maps, light, params).colour
+pub fn shade_by_tensor_ops(
+    maps: &ShadeMaps,
+    light: Tensor<2>,
+    params: ShadeParams,
+    encode_srgb: bool,
+) -> Tensor<3> {
+    shade_terms_by_tensor_ops(maps, light, params, encode_srgb).colour
 }
 
 /// The shading's terms, for inspection.
 #[derive(Clone, Debug)]
 pub struct ShadeTerms {
-    /// `[H, W, 3]` the colour (sRGB-encoded with [`ShadeParams::encode_srgb`]).
+    /// `[H, W, 3]` the colour (sRGB-encoded when asked).
     pub colour: Tensor<3>,
     /// `[H, W]` the Fresnel term `F`.
     pub fresnel: Tensor<2>,
@@ -844,7 +813,12 @@ pub struct ShadeTerms {
 }
 
 /// [`shade`] in Burn tensor ops (any backend), with its Fresnel and specular terms.
-pub fn shade_terms_by_tensor_ops(maps: &ShadeMaps, light: Tensor<2>, p: ShadeParams) -> ShadeTerms {
+pub fn shade_terms_by_tensor_ops(
+    maps: &ShadeMaps,
+    light: Tensor<2>,
+    p: ShadeParams,
+    encode_srgb: bool,
+) -> ShadeTerms {
     let [h, w, _] = maps.normal.dims();
     let cover_div = maps.coverage.clone().clamp_min(COVER_MIN);
     let n_len = maps
@@ -893,7 +867,7 @@ pub fn shade_terms_by_tensor_ops(maps: &ShadeMaps, light: Tensor<2>, p: ShadePar
         colour = colour + s * ((f.clone().reshape([h, w, 1]) * cov).neg() + 1.0);
     }
     ShadeTerms {
-        colour: if p.encode_srgb {
+        colour: if encode_srgb {
             linear_to_srgb(colour)
         } else {
             colour
@@ -927,311 +901,4 @@ pub fn srgb_to_linear<const D: usize>(x: Tensor<D>) -> Tensor<D> {
     let high = ((x.clone() + 0.055) / 1.055).powf_scalar(2.4);
     let is_low = x.lower_equal_elem(SRGB_DECODE_TOE);
     high.mask_where(is_low, low)
-}
-
-#[cfg(test)]
-mod tests {
-    use burn::tensor::DType::{F32, F64};
-    use burn::tensor::{Device, TensorData};
-    use rand::{RngExt, SeedableRng, rngs::StdRng};
-
-    use super::*;
-
-    /// Host maps of `n` pixels away from every clamp and toe (so central differences hold).
-    struct Host {
-        normal: Vec<f64>,
-        depth: Vec<f64>,
-        coverage: Vec<f64>,
-        base: Vec<f64>,
-        roughness: Vec<f64>,
-        scatter: Vec<f64>,
-        rays: Vec<f64>,
-    }
-
-    fn random_maps(n: usize, seed: u64) -> Host {
-        let mut rng = StdRng::seed_from_u64(seed);
-        let mut h = Host {
-            normal: Vec::new(),
-            depth: Vec::new(),
-            coverage: Vec::new(),
-            base: Vec::new(),
-            roughness: Vec::new(),
-            scatter: Vec::new(),
-            rays: Vec::new(),
-        };
-        for _ in 0..n {
-            let a = rng.random_range(0.05..1.0);
-            h.coverage.push(a);
-            h.rays.extend([
-                rng.random_range(-0.4..0.4),
-                rng.random_range(-0.4..0.4),
-                1.0,
-            ]);
-            h.normal.extend([
-                a * rng.random_range(-0.4..0.4),
-                a * rng.random_range(-0.4..0.4),
-                -a * rng.random_range(0.5..1.0),
-            ]);
-            h.depth.push(rng.random_range(1.0..4.0));
-            h.base
-                .extend((0..3).map(|_| a * rng.random_range(0.0..1.0)));
-            h.roughness.push(a * rng.random_range(0.12..0.95));
-            h.scatter
-                .extend((0..3).map(|_| rng.random_range(0.06..0.9)));
-        }
-        h
-    }
-
-    const LIGHT: f64 = 3.0;
-
-    fn params(scatter_lambert: bool, scatter_srgb: bool, encode_srgb: bool) -> ShadeParams {
-        ShadeParams {
-            f0: 0.04,
-            gamma: 0.3,
-            min_roughness: 0.08,
-            scatter_lambert,
-            scatter_srgb,
-            encode_srgb,
-        }
-    }
-
-    /// Every combination of the switches, with and without a scattering map.
-    fn variants() -> Vec<(ShadeParams, bool)> {
-        let mut v = Vec::new();
-        for bits in 0..8u32 {
-            let p = params(bits & 1 != 0, bits & 2 != 0, bits & 4 != 0);
-            v.push((p, true));
-            if bits & 3 == 0 {
-                v.push((p, false));
-            }
-        }
-        v
-    }
-
-    /// The maps as leaves on `device` (`require_grad` on an autodiff device).
-    fn tensors(
-        h: &Host,
-        [rows, cols]: [usize; 2],
-        device: &Device,
-        dtype: DType,
-        scatter: bool,
-    ) -> (ShadeMaps, Tensor<2>) {
-        let grad = device.is_autodiff();
-        let t3 = |v: &Vec<f64>| {
-            let t = Tensor::<3>::from_data(
-                TensorData::new(v.clone(), [rows, cols, 3]),
-                (device, dtype),
-            );
-            if grad { t.require_grad() } else { t }
-        };
-        let t2 = |v: &Vec<f64>| {
-            let t =
-                Tensor::<2>::from_data(TensorData::new(v.clone(), [rows, cols]), (device, dtype));
-            if grad { t.require_grad() } else { t }
-        };
-        let light = Tensor::<2>::from_data(TensorData::new(vec![LIGHT], [1, 1]), (device, dtype));
-        let maps = ShadeMaps {
-            normal: t3(&h.normal),
-            depth: t2(&h.depth),
-            coverage: t2(&h.coverage),
-            base: t3(&h.base),
-            roughness: t2(&h.roughness),
-            scatter: scatter.then(|| t3(&h.scatter)),
-            rays: Tensor::<3>::from_data(
-                TensorData::new(h.rays.clone(), [rows, cols, 3]),
-                (device, dtype),
-            ),
-        };
-        (maps, if grad { light.require_grad() } else { light })
-    }
-
-    fn host<const D: usize>(t: Tensor<D>) -> Vec<f64> {
-        t.cast(F64).into_data().to_vec::<f64>().unwrap()
-    }
-
-    type Shade = fn(&ShadeMaps, Tensor<2>, ShadeParams) -> Tensor<3>;
-
-    #[test]
-    fn the_op_equals_the_tensor_ops_forward_and_backward() {
-        let size = [40, 60]; // more than two chunks
-        let h = random_maps(size[0] * size[1], 5);
-        let plain = Device::ndarray();
-        let device = Device::ndarray().autodiff();
-        let mut rng = StdRng::seed_from_u64(6);
-        let u: Vec<f64> = (0..3 * size[0] * size[1])
-            .map(|_| rng.random_range(-1.0..1.0))
-            .collect();
-        for (p, scatter) in variants() {
-            let run = |shade: Shade, dtype| {
-                let (maps, light) = tensors(&h, size, &plain, dtype, scatter);
-                host(shade(&maps, light, p))
-            };
-            // NdArray's `powf_scalar` takes its exponent as an f32, so the tensor ops' sRGB
-            // curves are f64 curves with exponents 2.4 and 1/2.4 rounded to f32 (some 1e-8).
-            let tol = if p.scatter_srgb || p.encode_srgb {
-                1e-7
-            } else {
-                1e-12
-            };
-            let op = run(shade, F64);
-            let ops = run(shade_by_tensor_ops, F64);
-            for (a, b) in op.iter().zip(&ops) {
-                assert!(
-                    (a - b).abs() < tol * (1.0 + b.abs()),
-                    "{p:?}: {a} against {b}"
-                );
-            }
-            // f32 against f64: the inputs' rounding alone moves a sharp specular peak by a few
-            // 1e-5 of its value, in either evaluation.
-            let (op32, ops32) = (run(shade, F32), run(shade_by_tensor_ops, F32));
-            for ((a, b), c) in op32.iter().zip(&op).zip(&ops32) {
-                let tol = 2e-4 * (1.0 + b.abs());
-                assert!((a - b).abs() < tol, "{p:?} f32: {a} against {b}");
-                assert!((c - b).abs() < tol, "{p:?} f32 tensor ops: {c} against {b}");
-            }
-            // The gradients of sum(u * colour), every input.
-            let grads = |shade: Shade| {
-                let (maps, light) = tensors(&h, size, &device, F64, scatter);
-                let out = shade(&maps, light.clone(), p);
-                let weights = Tensor::<3>::from_data(
-                    TensorData::new(u.clone(), [size[0], size[1], 3]),
-                    (&device, F64),
-                );
-                let g = (out * weights).sum().backward();
-                let mut all = vec![
-                    host(maps.normal.grad(&g).unwrap()),
-                    host(maps.depth.grad(&g).unwrap()),
-                    host(maps.coverage.grad(&g).unwrap()),
-                    host(maps.base.grad(&g).unwrap()),
-                    host(maps.roughness.grad(&g).unwrap()),
-                    host(light.grad(&g).unwrap()),
-                ];
-                if let Some(s) = &maps.scatter {
-                    all.push(host(s.grad(&g).unwrap()));
-                }
-                all
-            };
-            // Per input, to 1e-10 of its largest gradient: at a sharp specular peak the terms
-            // of one gradient reach a thousand times their sum, in either order of evaluation.
-            for (k, (a, b)) in grads(shade)
-                .iter()
-                .zip(grads(shade_by_tensor_ops))
-                .enumerate()
-            {
-                let scale = b.iter().fold(1.0f64, |m, y| m.max(y.abs()));
-                for (x, y) in a.iter().zip(&b) {
-                    assert!(
-                        (x - y).abs() < tol.max(1e-10) * scale,
-                        "{p:?}, input {k}: {x} against {y} (largest {scale})"
-                    );
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn the_gradients_match_central_differences_in_f64() {
-        let (n, eps) = (9, 1e-6);
-        let h = random_maps(n, 8);
-        let mut rng = StdRng::seed_from_u64(10);
-        let u: Vec<f64> = (0..3 * n).map(|_| rng.random_range(-1.0..1.0)).collect();
-        for (p, scatter) in variants() {
-            let pixels = |m: &Host, light: f64| -> f64 {
-                let px = Pixels {
-                    normal: &m.normal,
-                    depth: &m.depth,
-                    coverage: &m.coverage,
-                    base: &m.base,
-                    roughness: &m.roughness,
-                    scatter: scatter.then_some(&m.scatter[..]),
-                    rays: &m.rays,
-                    light,
-                };
-                forward_host(&px, p)
-                    .iter()
-                    .zip(&u)
-                    .map(|(a, b)| a * b)
-                    .sum()
-            };
-            let px = Pixels {
-                normal: &h.normal,
-                depth: &h.depth,
-                coverage: &h.coverage,
-                base: &h.base,
-                roughness: &h.roughness,
-                scatter: scatter.then_some(&h.scatter[..]),
-                rays: &h.rays,
-                light: LIGHT,
-            };
-            let g = backward_host(&px, p, &u);
-            let close = |what: &str, k: usize, got: f64, fd: f64| {
-                assert!(
-                    (got - fd).abs() < 1e-7 * (1.0 + fd.abs()),
-                    "{p:?}, {what} {k}: {got} against {fd}"
-                );
-            };
-            type Field = fn(&mut Host) -> &mut Vec<f64>;
-            let fields: [(&str, Field, &Vec<f64>); 6] = [
-                ("normal", |m| &mut m.normal, &g.normal),
-                ("depth", |m| &mut m.depth, &g.depth),
-                ("coverage", |m| &mut m.coverage, &g.coverage),
-                ("base", |m| &mut m.base, &g.base),
-                ("roughness", |m| &mut m.roughness, &g.roughness),
-                (
-                    "scatter",
-                    |m| &mut m.scatter,
-                    g.scatter.as_ref().unwrap_or(&g.depth),
-                ),
-            ];
-            for (what, field, got) in fields {
-                if what == "scatter" && !scatter {
-                    continue;
-                }
-                assert_eq!(got.len(), field(&mut random_maps(n, 8)).len());
-                for (k, g_k) in got.iter().enumerate() {
-                    let mut plus = random_maps(n, 8);
-                    field(&mut plus)[k] += eps;
-                    let mut minus = random_maps(n, 8);
-                    field(&mut minus)[k] -= eps;
-                    let fd = (pixels(&plus, LIGHT) - pixels(&minus, LIGHT)) / (2.0 * eps);
-                    close(what, k, *g_k, fd);
-                }
-            }
-            let fd = (pixels(&h, LIGHT + eps) - pixels(&h, LIGHT - eps)) / (2.0 * eps);
-            close("light", 0, g.light, fd);
-        }
-    }
-
-    #[test]
-    fn stiff_pixels_give_finite_colours_and_gradients() {
-        let n = 8;
-        let mut h = random_maps(n, 12);
-        // No coverage; a zero normal; a normal perpendicular to the ray (grazing); depth 0; zero
-        // roughness; a huge depth; a negative and an over-bright scattering colour; a huge
-        // coverage-premultiplied normal.
-        h.coverage[0] = 0.0;
-        h.normal[3..6].copy_from_slice(&[0.0, 0.0, 0.0]);
-        h.normal[6..9].copy_from_slice(&[h.rays[7], -h.rays[6], 0.0]);
-        h.depth[3] = 0.0;
-        h.roughness[4] = 0.0;
-        h.depth[5] = 1e6;
-        h.scatter[18..21].copy_from_slice(&[-0.3, 0.0, 30.0]);
-        h.normal[21..24].copy_from_slice(&[1e20, -1e20, -1e20]);
-        let device = Device::ndarray().autodiff();
-        for (p, scatter) in variants() {
-            let (maps, light) = tensors(&h, [2, 4], &device, F32, scatter);
-            let out = shade(&maps, light.clone() * 1e6, p);
-            assert!(host(out.clone()).iter().all(|v| v.is_finite()), "{p:?}");
-            let g = out.sum().backward();
-            for t in [
-                host(maps.normal.grad(&g).unwrap()),
-                host(maps.depth.grad(&g).unwrap()),
-                host(maps.coverage.grad(&g).unwrap()),
-                host(maps.roughness.grad(&g).unwrap()),
-                host(light.grad(&g).unwrap()),
-            ] {
-                assert!(t.iter().all(|v| v.is_finite()), "{p:?}: {t:?}");
-            }
-        }
-    }
 }

@@ -13,5 +13,6 @@ mod errors;
 mod forward;
 mod gradients;
 mod lanes;
+mod shade;
 mod stiff;
 mod upstream;
